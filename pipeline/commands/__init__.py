@@ -1,0 +1,1 @@
+"""One module per ``agrivio`` sub-command, each with ``register(subparsers)``."""
