@@ -1,0 +1,255 @@
+"""On-disk cache of the depth stage, and the streaming entry point :func:`depth_stream`.
+
+Layout (under ``cache_root``, by default ``pipeline.paths.cache_dir()``)::
+
+    depth/<bag identity>/<params key>/
+        meta.json              params, bag identity, chunk size, and ``n_frames`` once the sequence is complete
+        chunk_000000.npz       frames [0, chunk_size): stamps, indices, PNG-encoded depth and grey images
+
+Depth is stored as 16-bit PNG of whole millimetres (0 = hole) and the rectified left grey image as 8-bit PNG
+(lossless, compact: PNG's row filters suit images far better than raw zlib). Chunk files are written atomically.
+The key is the bag's content identity (:meth:`RosarioSequence.identity`) plus :meth:`DepthParams.key` (which
+includes the stage and OpenCV versions), so a changed bag or parameter never reads stale depth.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from pipeline.atomic import atomic_path, write_json_atomic
+from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize
+
+DEFAULT_CHUNK_SIZE = 32
+_PNG_FLAGS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+
+
+def _png(img: np.ndarray) -> np.ndarray:
+    ok, buf = cv2.imencode(".png", img, _PNG_FLAGS)
+    if not ok:  # pragma: no cover - OpenCV failure
+        raise RuntimeError("PNG encoding failed")
+    return buf.reshape(-1)
+
+
+def _unpng(buf: np.ndarray) -> np.ndarray:
+    img = cv2.imdecode(np.asarray(buf, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError("corrupt PNG in depth cache")
+    return img
+
+
+@dataclass(frozen=True)
+class _Encoded:
+    """One frame as stored: stamp, index and the two PNG byte arrays (a few hundred kB instead of ~1.5 MB)."""
+
+    stamp_ns: int
+    index: int
+    depth_png: np.ndarray
+    grey_png: np.ndarray
+
+    @classmethod
+    def of(cls, frame: DepthFrame) -> "_Encoded":
+        return cls(int(frame.stamp_ns), int(frame.index), _png(encode_depth_mm(frame.depth_m)),
+                   _png(np.ascontiguousarray(frame.left_rect_grey)))
+
+    def decode(self) -> DepthFrame:
+        depth, valid = decode_depth_mm(_unpng(self.depth_png))
+        return DepthFrame(self.stamp_ns, self.index, depth, valid, _unpng(self.grey_png))
+
+
+class DepthCache:
+    """Depth frames of one bag and one parameter set, stored in chunks of ``chunk_size`` frames.
+
+    Frames are held encoded (PNG) in memory too, so a chunk in flight costs ~10 MB, not ~50 MB.
+
+    Args:
+        cache_root: root folder (``depth/`` is created below it).
+        bag_key: the bag identity (e.g. ``RosarioSequence.identity()``).
+        params: depth parameters (their hash selects the sub-folder).
+        chunk_size: frames per chunk file (an existing cache keeps the size it was written with).
+    """
+
+    def __init__(self, cache_root: Path | str, bag_key: str, params: DepthParams,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+        self.params = params
+        self.bag_key = bag_key
+        self.directory = Path(cache_root) / "depth" / bag_key / params.key()
+        meta = self._read_meta()
+        self.chunk_size = int(meta.get("chunk_size", chunk_size)) if meta else int(chunk_size)
+        self._pending: dict[int, dict[int, _Encoded]] = {}
+        self._loaded: tuple[int, dict[int, _Encoded]] | None = None
+
+    # ---- metadata ----------------------------------------------------------------------------------------------
+    @property
+    def meta_path(self) -> Path:
+        return self.directory / "meta.json"
+
+    def _read_meta(self) -> dict[str, Any]:
+        try:
+            return json.loads(self.meta_path.read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            return {}
+
+    def _write_meta(self, **extra: Any) -> None:
+        meta = {"bag": self.bag_key, "params": asdict(self.params), "params_key": self.params.key(),
+                "chunk_size": self.chunk_size, **extra}
+        write_json_atomic(self.meta_path, meta)
+
+    @property
+    def n_frames(self) -> int | None:
+        """Number of frames of the sequence if the cache is complete, else None."""
+        n = self._read_meta().get("n_frames")
+        return int(n) if n is not None else None
+
+    def mark_complete(self, n_frames: int) -> None:
+        """Record that frames ``0 .. n_frames-1`` are all stored."""
+        self._write_meta(n_frames=int(n_frames))
+
+    # ---- chunks ------------------------------------------------------------------------------------------------
+    def _chunk_path(self, chunk: int) -> Path:
+        return self.directory / f"chunk_{chunk:06d}.npz"
+
+    def _load_chunk(self, chunk: int) -> dict[int, _Encoded]:
+        if self._loaded is not None and self._loaded[0] == chunk:
+            return self._loaded[1]
+        path = self._chunk_path(chunk)
+        frames: dict[int, _Encoded] = {}
+        if path.is_file():
+            try:
+                with np.load(path) as z:
+                    for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist())):
+                        frames[int(index)] = _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"])
+            except (OSError, KeyError, ValueError, EOFError):
+                frames = {}  # a damaged chunk is recomputed
+        self._loaded = (chunk, frames)
+        return frames
+
+    def _write_chunk(self, chunk: int, frames: dict[int, _Encoded]) -> None:
+        ordered = [frames[i] for i in sorted(frames)]
+        arrays: dict[str, np.ndarray] = {
+            "stamps_ns": np.array([f.stamp_ns for f in ordered], dtype=np.int64),
+            "indices": np.array([f.index for f in ordered], dtype=np.int64),
+        }
+        for k, f in enumerate(ordered):
+            arrays[f"depth_{k}"] = f.depth_png
+            arrays[f"grey_{k}"] = f.grey_png
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if not self.meta_path.exists():
+            self._write_meta()
+        with atomic_path(self._chunk_path(chunk), suffix=".npz") as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+        self._loaded = (chunk, dict(frames))
+
+    # ---- public API --------------------------------------------------------------------------------------------
+    def get(self, index: int) -> DepthFrame | None:
+        """The cached frame ``index`` (depth in whole millimetres) or None."""
+        chunk = index // self.chunk_size
+        enc = self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+        return enc.decode() if enc is not None else None
+
+    def put(self, frame: DepthFrame) -> None:
+        """Store a frame (depth rounded to millimetres). A chunk is written once all its frames are present."""
+        chunk = frame.index // self.chunk_size
+        if chunk not in self._pending:
+            self._pending[chunk] = dict(self._load_chunk(chunk))
+        pending = self._pending[chunk]
+        pending[frame.index] = _Encoded.of(frame)
+        if len(pending) == self.chunk_size:
+            self._write_chunk(chunk, self._pending.pop(chunk))
+
+    def flush(self) -> None:
+        """Write partially filled chunks (at the end of a sequence or when interrupted)."""
+        for chunk in sorted(self._pending):
+            self._write_chunk(chunk, self._pending[chunk])
+        self._pending.clear()
+
+    def iter(self, start: int = 0, stop: int | None = None) -> Iterator[DepthFrame]:
+        """Cached frames ``start, start+1, …`` in order, ending at ``stop`` or at the first missing frame."""
+        index = start
+        while stop is None or index < stop:
+            frame = self.get(index)
+            if frame is None:
+                return
+            yield frame
+            index += 1
+
+    def __iter__(self) -> Iterator[DepthFrame]:
+        return self.iter()
+
+
+def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool = True, progress: bool = True,
+                 cache_root: Path | str | None = None, stats: dict[str, Any] | None = None,
+                 start_index: int = 0, stop_index: int | None = None) -> Iterator[DepthFrame]:
+    """Depth frames of a sequence in order, read from the cache or computed (and cached) when missing.
+
+    Args:
+        sequence: a :class:`pipeline.bag_reader.RosarioSequence` (``identity()``, ``calibration``,
+            ``stereo_frames()``, ``count()``).
+        cache: read and write the on-disk cache; False computes every frame and stores nothing.
+        progress: show a tqdm bar on stderr.
+        cache_root: cache root (default ``pipeline.paths.cache_dir()``).
+        stats: optional dict filled with ``computed``, ``cached``, ``compute_s`` (seconds spent computing),
+            ``directory`` (cache folder or None).
+        start_index, stop_index: frame index range.
+    Yields:
+        :class:`DepthFrame`, depth rounded to whole millimetres in both paths (so results never depend on
+        whether the cache was warm).
+    """
+    from tqdm import tqdm
+
+    from pipeline.paths import cache_dir
+    from pipeline.rosario_layout import TOPIC_LEFT_IMAGE
+
+    st = stats if stats is not None else {}
+    st.update(computed=0, cached=0, compute_s=0.0, directory=None)
+    store = DepthCache(cache_root or cache_dir(), sequence.identity(), params) if cache else None
+    if store is not None:
+        st["directory"] = str(store.directory)
+    total = sequence.count(TOPIC_LEFT_IMAGE)
+    bar = tqdm(total=total if stop_index is None else min(total, stop_index), initial=start_index,
+               disable=not progress, unit="frame", desc="depth", leave=False)
+    try:
+        index = start_index
+        if store is not None:
+            for frame in store.iter(start_index, stop_index):
+                st["cached"] += 1
+                bar.update(1)
+                index = frame.index + 1
+                yield frame
+            n = store.n_frames
+            if n is not None and index >= n:
+                return
+        if stop_index is not None and index >= stop_index:
+            return
+        rig = sequence.calibration
+        n_seen = index  # frames of the sequence seen so far (for the completeness marker)
+        for sf in sequence.stereo_frames(start_index=index, stop_index=stop_index):
+            n_seen = sf.index + 1
+            frame = store.get(sf.index) if store is not None else None
+            if frame is not None:
+                st["cached"] += 1
+            else:
+                t0 = time.perf_counter()
+                frame = quantize(compute_depth(rig, sf.left_bgr, sf.right_bgr, params, sf.stamp_ns, sf.index))
+                st["compute_s"] += time.perf_counter() - t0
+                st["computed"] += 1
+                if store is not None:
+                    store.put(frame)
+            bar.update(1)
+            yield frame
+        if store is not None:
+            store.flush()
+            if start_index == 0 and stop_index is None:  # every frame 0 .. n_seen-1 is now stored
+                store.mark_complete(n_seen)
+    finally:
+        if store is not None:
+            store.flush()
+        bar.close()

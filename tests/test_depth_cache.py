@@ -1,0 +1,90 @@
+"""Depth cache: keyed by bag and parameters, streams frames in order, warm == cold; depth/demo commands."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from pipeline.bag_reader import RosarioSequence
+from pipeline.cli import main
+from pipeline.depth import DepthFrame, DepthParams
+from pipeline.depth_cache import DepthCache, depth_stream
+
+
+def _same(a: DepthFrame, b: DepthFrame) -> bool:
+    return (a.stamp_ns, a.index) == (b.stamp_ns, b.index) and np.array_equal(a.depth_m, b.depth_m, equal_nan=True) \
+        and np.array_equal(a.valid, b.valid) and np.array_equal(a.left_rect_grey, b.left_rect_grey)
+
+
+def test_stream_computes_then_reads_cache(tmp_path, small_bag):
+    path, truth = small_bag
+    seq = RosarioSequence(path)
+    st: dict = {}
+    part = list(depth_stream(seq, cache_root=tmp_path, progress=False, stats=st, stop_index=2))
+    assert [f.index for f in part] == [0, 1] and st["computed"] == 2
+    cold = list(depth_stream(seq, cache_root=tmp_path, progress=False, stats=st))  # resumes after frame 1
+    assert (st["cached"], st["computed"]) == (2, len(truth.frame_stamps_ns) - 2)
+    assert [f.stamp_ns for f in cold] == truth.frame_stamps_ns.tolist()
+    warm = list(depth_stream(seq, cache_root=tmp_path, progress=False, stats=st))
+    assert (st["cached"], st["computed"]) == (len(cold), 0)
+    uncached = list(depth_stream(seq, cache=False, progress=False, stats=st))
+    assert st["directory"] is None
+    assert all(_same(a, b) and _same(a, c) for a, b, c in zip(cold, warm, uncached))
+    assert all(0.05 < f.hole_ratio < 0.9 for f in cold)
+    meta = json.loads((tmp_path / "depth" / seq.identity() / DepthParams().key() / "meta.json").read_text())
+    assert meta["n_frames"] == len(truth.frame_stamps_ns) and meta["params"]["num_disparities"] == 64
+
+
+def test_cache_keyed_by_params_and_bag(tmp_path, small_bag):
+    seq = RosarioSequence(small_bag[0])
+    list(depth_stream(seq, cache_root=tmp_path, progress=False, stop_index=1))
+    st: dict = {}
+    list(depth_stream(seq, DepthParams(block_size=7), cache_root=tmp_path, progress=False, stop_index=1, stats=st))
+    assert st["computed"] == 1  # other parameters: other cache folder
+    assert len(list((tmp_path / "depth" / seq.identity()).iterdir())) == 2
+
+
+def test_cache_put_get_iter(tmp_path):
+    cache = DepthCache(tmp_path, "bag-x", DepthParams(), chunk_size=2)
+    rng = np.random.default_rng(0)
+
+    def frame(i: int) -> DepthFrame:
+        depth = rng.uniform(0.5, 40.0, (8, 10)).astype(np.float32)
+        depth[0, :3] = np.nan
+        return DepthFrame(100 + i, i, depth, np.isfinite(depth), rng.integers(0, 256, (8, 10), dtype=np.uint8))
+
+    frames = [frame(i) for i in range(5)]
+    for f in (frames[0], frames[1], frames[3]):
+        cache.put(f)
+    cache.flush()
+    again = DepthCache(tmp_path, "bag-x", DepthParams(), chunk_size=99)
+    assert again.chunk_size == 2  # an existing cache keeps its chunking
+    assert [f.index for f in again.iter()] == [0, 1]  # stops at the gap
+    assert again.get(2) is None and again.get(3) is not None
+    got = again.get(1)
+    assert np.array_equal(got.valid, frames[1].valid) and np.array_equal(got.left_rect_grey, frames[1].left_rect_grey)
+    assert np.nanmax(np.abs(got.depth_m - frames[1].depth_m)) <= 0.0005 + 1e-6  # whole millimetres
+    assert sorted(p.name for p in again.directory.iterdir()) == ["chunk_000000.npz", "chunk_000001.npz", "meta.json"]
+
+
+def test_depth_command(tmp_path, small_bag, capsys):
+    assert main(["depth", str(small_bag[0]), "--out", str(tmp_path), "--quiet", "--max-frames", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "frames              3 (3 computed, 0 from cache)" in out and "hole ratio" in out
+    summary = json.loads(next((tmp_path / "depth").rglob("summary.json")).read_text())
+    assert summary["frames"] == 3 and 0 < summary["hole_ratio_median"] < 1
+
+
+def test_info_command(small_bag, capsys):
+    assert main(["info", str(small_bag[0])]) == 0
+    out = capsys.readouterr().out
+    assert "/stereo/left/image_raw" in out and "tf_static" in out and "baseline          0.11872 m" in out
+
+
+def test_demo_command(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("AGRIVIO_CACHE", str(tmp_path))
+    assert main(["demo", "--frames", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "frames              3 (3 computed" in out and "depth vs truth" in out
+    assert (tmp_path / "demo" / "synthetic_3f_seed0.bag").is_file()
