@@ -11,6 +11,7 @@ I/O functions return or take text; writing files atomically is the pipeline's jo
 from __future__ import annotations
 
 import io
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,8 @@ class Trajectory:
     has_orientation: bool = True
 
     def __post_init__(self) -> None:
-        # private copies: the arrays are frozen below, which must not touch the caller's arrays
+        # private copies, so that later changes to the caller's arrays do not reach the trajectory. The arrays stay
+        # writeable (scipy's Rotation.apply rejects read-only input) but must be treated as read-only.
         stamps = np.array(self.stamps_s, dtype=np.float64, copy=True).reshape(-1)
         positions = np.array(self.positions, dtype=np.float64, copy=True)
         quats = np.array(self.quats_xyzw, dtype=np.float64, copy=True)
@@ -62,8 +64,6 @@ class Trajectory:
             raise EvalInputError("trajectory contains a zero quaternion")
         if n:
             quats = quats / norms[:, None]
-        for arr in (stamps, positions, quats):
-            arr.setflags(write=False)
         object.__setattr__(self, "stamps_s", stamps)
         object.__setattr__(self, "positions", positions)
         object.__setattr__(self, "quats_xyzw", quats)
@@ -133,6 +133,23 @@ def _all_identity(quats: np.ndarray) -> bool:
     return bool(np.all(np.abs(q[:, :3]) < _IDENTITY_TOL) and np.all(np.abs(np.abs(q[:, 3]) - 1.0) < _IDENTITY_TOL))
 
 
+def _parse_tum_fast(text: str) -> Trajectory | None:
+    """numpy's C parser for well-formed files; None when anything is off (the line-by-line parser then finds
+    the offending line and raises with its number)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data": the slow path reports it
+            data = np.loadtxt(io.StringIO(text, newline=None), comments="#", dtype=np.float64, ndmin=2)
+    except ValueError:
+        return None
+    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] != 8 or not np.all(np.isfinite(data)):
+        return None
+    if np.any(np.diff(data[:, 0]) <= 0.0) or np.any(np.sum(np.abs(data[:, 4:8]), axis=1) < 1e-6):
+        return None
+    quats = data[:, 4:8]
+    return Trajectory(data[:, 0], data[:, 1:4], quats, has_orientation=not _all_identity(quats))
+
+
 def parse_tum(text: str, source: str = "<text>") -> Trajectory:
     """Parse TUM text: one pose a line, ``t x y z qx qy qz qw`` (seconds, metres, xyzw), separated by whitespace.
 
@@ -143,6 +160,9 @@ def parse_tum(text: str, source: str = "<text>") -> Trajectory:
     Raises:
         EvalInputError: naming ``source`` and the line number of a malformed line, or when there is no pose.
     """
+    fast = _parse_tum_fast(text)
+    if fast is not None:
+        return fast
     rows: list[list[float]] = []
     linenos: list[int] = []
     for lineno, raw in enumerate(io.StringIO(text, newline=None), start=1):

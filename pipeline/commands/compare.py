@@ -1,0 +1,173 @@
+"""``agrivio compare RUNS_DIR [--out DIR]``: five-run statistics and the before/after report of a runs folder.
+
+Reads every ``*.json`` under RUNS_DIR (any depth) that is a run record (``"record_type": "run"``), summarises
+ATE per sequence × variant (failed runs counted and listed), compares ``depth-raw`` with ``depth-inpainted``
+(paper Table 2 layout, Welch test, bootstrap CI) and writes ``report.md``, ``report.html`` (self-contained),
+``summary.json`` and ``figures/*.png`` into DIR (default RUNS_DIR/report). Records that point to their estimate
+and ground-truth TUM files (``estimate_path``, ``gt_path``, relative to the record) add trajectory plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+from tqdm import tqdm
+
+from eval.errors import EvalInputError
+from eval.evaluate import EvalOptions, Evaluation, evaluate
+from eval.records import RunRecord, is_run_record
+from eval.report import build_report
+from eval.trajectory import read_tum
+from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
+from pipeline.errors import AgrivioError
+
+BENCH_NAMES = ("inpaint_bench.md", "inpaint_bench.json")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("compare", help="five-run statistics and the before/after inpainting report",
+                              description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
+    p.add_argument("runs_dir", type=Path, help="folder holding run records (*.json, any depth)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS_DIR/report)")
+    p.add_argument("--title", default="agrivio: does depth inpainting make the MSCKF VIO more accurate?",
+                   help="report title")
+    p.add_argument("--no-trajectories", action="store_true",
+                   help="skip loading estimate/GT files (no top-view and error-over-time figures)")
+    p.set_defaults(func=run)
+
+
+def find_records(runs_dir: Path, exclude: Path | None = None) -> tuple[list[tuple[Path, RunRecord]], list[str]]:
+    """All run records under ``runs_dir`` (sorted by path) and notes about files that could not be used."""
+    records: list[tuple[Path, RunRecord]] = []
+    notes: list[str] = []
+    exclude_r = exclude.resolve() if exclude is not None else None
+    for path in sorted(runs_dir.rglob("*.json")):
+        if exclude_r is not None and exclude_r in path.resolve().parents:
+            continue
+        if path.name.startswith("."):  # temporary files of atomic writes
+            continue
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            if "record" in path.name:
+                notes.append(f"{path}: unreadable record ({type(exc).__name__}) — not counted")
+            continue
+        if not is_run_record(data):
+            continue
+        try:
+            records.append((path, RunRecord.from_dict(data, source=str(path))))
+        except EvalInputError as exc:
+            notes.append(f"{exc} — not counted")
+    return records, notes
+
+
+def _resolve(base: Path, p: str) -> Path:
+    q = Path(p)
+    return q if q.is_absolute() else base / q
+
+
+def _representative(items: Sequence[tuple[Path, RunRecord]]) -> tuple[Path, RunRecord] | None:
+    """The ok run whose ATE RMSE is the median of its group (lower median; ties by seed)."""
+    ok = [(p, r) for p, r in items if r.ok and r.estimate_path and r.gt_path and r.metric("ate_rmse_m") is not None]
+    if not ok:
+        return None
+    ok.sort(key=lambda pr: (pr[1].metric("ate_rmse_m"), pr[1].seed))
+    return ok[(len(ok) - 1) // 2]
+
+
+def _options_for(rec: RunRecord) -> EvalOptions:
+    opts = rec.extra.get("eval_options")
+    kwargs = {}
+    if isinstance(opts, dict):
+        for key in ("align", "max_diff_s", "offset_s", "interpolate", "max_gap_s", "first_n", "lever_arm_m",
+                    "rpe_distances_m", "rpe_rel_tol"):
+            if opts.get(key) is not None:
+                kwargs[key] = tuple(opts[key]) if isinstance(opts[key], list) else opts[key]
+    elif isinstance(rec.metrics.get("align"), str):
+        kwargs["align"] = rec.metrics["align"]
+    return EvalOptions(**kwargs)
+
+
+def load_evaluations(records: Sequence[tuple[Path, RunRecord]]) -> tuple[dict[tuple[str, str], Evaluation], list[str]]:
+    """Evaluate one representative run per (sequence, variant) from its TUM files."""
+    groups: dict[tuple[str, str], list[tuple[Path, RunRecord]]] = {}
+    for path, rec in records:
+        groups.setdefault((rec.sequence, rec.display_variant()), []).append((path, rec))
+    evaluations: dict[tuple[str, str], Evaluation] = {}
+    notes: list[str] = []
+    chosen = [(key, _representative(items)) for key, items in sorted(groups.items())]
+    chosen = [(key, pr) for key, pr in chosen if pr is not None]
+    for key, (path, rec) in tqdm(chosen, desc="trajectories", unit="run", disable=len(chosen) < 2):
+        est_path = _resolve(path.parent, rec.estimate_path or "")
+        gt_path = _resolve(path.parent, rec.gt_path or "")
+        try:
+            evaluations[key] = evaluate(read_tum(gt_path), read_tum(est_path), _options_for(rec))
+        except EvalInputError as exc:
+            notes.append(f"{key[0]}/{key[1]} seed {rec.seed}: trajectory plot skipped: {exc}")
+    return evaluations, notes
+
+
+def _bench_markdown(runs_dir: Path) -> str | None:
+    for name in BENCH_NAMES:
+        hits = sorted(runs_dir.rglob(name))
+        if not hits:
+            continue
+        text = hits[0].read_text(encoding="utf-8")
+        if name.endswith(".md"):
+            return text
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError:
+            return f"_{hits[0]} is not valid JSON_"
+        if isinstance(data, dict) and isinstance(data.get("markdown"), str):
+            return data["markdown"]
+        rows = data if isinstance(data, list) else data.get("rows") if isinstance(data, dict) else None
+        if isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows):
+            keys = list(dict.fromkeys(k for r in rows for k in r))
+            lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+            for r in rows:
+                lines.append("| " + " | ".join(_cell(r.get(k)) for k in keys) + " |")
+            return "\n".join(lines)
+        return "```\n" + json.dumps(data, indent=2)[:20000] + "\n```"
+    return None
+
+
+def _cell(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "" if v is None else str(v).replace("|", "\\|")
+
+
+def run(args: argparse.Namespace) -> int:
+    runs_dir: Path = args.runs_dir
+    if not runs_dir.is_dir():
+        raise AgrivioError(f"{runs_dir}: not a folder of run records")
+    out: Path = args.out if args.out is not None else runs_dir / "report"
+    found, notes = find_records(runs_dir, exclude=out)
+    if not found:
+        raise AgrivioError(f"{runs_dir}: no run records found (*.json with \"record_type\": \"run\")")
+    evaluations: dict[tuple[str, str], Evaluation] = {}
+    if not args.no_trajectories:
+        evaluations, more = load_evaluations(found)
+        notes += more
+    report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=args.title,
+                          notes=notes)
+    fig_dir = out / "figures"
+    for fig in report.figures:
+        with atomic_path(fig_dir / f"{fig.name}.png", suffix=".png") as tmp:
+            tmp.write_bytes(fig.png)
+    write_text_atomic(out / "report.md", report.markdown("figures"))
+    write_text_atomic(out / "report.html", report.html())
+    write_json_atomic(out / "summary.json", report.summary())
+    n_failed = sum(1 for _, r in found if not r.ok)
+    print(f"{len(found)} run record(s) ({n_failed} failed) in {len(report.groups)} sequence×variant group(s)")
+    for line in notes:
+        print(f"note: {line}")
+    print()
+    print(report.markdown("figures").split("## Figures")[0].rstrip())
+    print()
+    print(f"wrote {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}, {len(report.figures)} figure(s)")
+    return 0
