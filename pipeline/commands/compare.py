@@ -25,6 +25,7 @@ from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
 
 BENCH_NAMES = ("inpaint_bench.md", "inpaint_bench.json")
+DEFAULT_TITLE = "agrivio: does depth inpainting make the MSCKF VIO more accurate?"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
     p.add_argument("runs_dir", type=Path, help="folder holding run records (*.json, any depth)")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: RUNS_DIR/report)")
-    p.add_argument("--title", default="agrivio: does depth inpainting make the MSCKF VIO more accurate?",
+    p.add_argument("--title", default=DEFAULT_TITLE,
                    help="report title")
     p.add_argument("--no-trajectories", action="store_true",
                    help="skip loading estimate/GT files (no top-view and error-over-time figures)")
@@ -141,33 +142,45 @@ def _cell(v: object) -> str:
     return "" if v is None else str(v).replace("|", "\\|")
 
 
-def run(args: argparse.Namespace) -> int:
-    runs_dir: Path = args.runs_dir
+def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str = DEFAULT_TITLE,
+                            trajectories: bool = True, verbose: bool = True) -> tuple[Path, str]:
+    """Build the comparison report of every run record under ``runs_dir`` and write it into ``out``.
+
+    Returns the output folder and the Markdown text of the tables (the one-screen summary).
+    """
     if not runs_dir.is_dir():
         raise AgrivioError(f"{runs_dir}: not a folder of run records")
-    out: Path = args.out if args.out is not None else runs_dir / "report"
+    out = out if out is not None else runs_dir / "report"
     found, notes = find_records(runs_dir, exclude=out)
     if not found:
         raise AgrivioError(f"{runs_dir}: no run records found (*.json with \"record_type\": \"run\")")
     evaluations: dict[tuple[str, str], Evaluation] = {}
-    if not args.no_trajectories:
+    if trajectories:
         evaluations, more = load_evaluations(found)
         notes += more
-    report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=args.title,
-                          notes=notes)
+    report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=title, notes=notes)
     fig_dir = out / "figures"
     for fig in report.figures:
         with atomic_path(fig_dir / f"{fig.name}.png", suffix=".png") as tmp:
             tmp.write_bytes(fig.png)
-    write_text_atomic(out / "report.md", report.markdown("figures"))
+    markdown = report.markdown("figures")
+    write_text_atomic(out / "report.md", markdown)
     write_text_atomic(out / "report.html", report.html())
     write_json_atomic(out / "summary.json", report.summary())
-    n_failed = sum(1 for _, r in found if not r.ok)
-    print(f"{len(found)} run record(s) ({n_failed} failed) in {len(report.groups)} sequence×variant group(s)")
-    for line in notes:
-        print(f"note: {line}")
-    print()
-    print(report.markdown("figures").split("## Figures")[0].rstrip())
-    print()
-    print(f"wrote {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}, {len(report.figures)} figure(s)")
+    tables = markdown.split("## Figures")[0].rstrip()
+    if verbose:
+        n_failed = sum(1 for _, r in found if not r.ok)
+        print(f"{len(found)} run record(s) ({n_failed} failed) in {len(report.groups)} sequence×variant group(s)")
+        for line in notes:
+            print(f"note: {line}")
+        print()
+        print(tables)
+        print()
+        print(f"wrote {out / 'report.md'}, {out / 'report.html'}, {out / 'summary.json'}, "
+              f"{len(report.figures)} figure(s)")
+    return out, tables
+
+
+def run(args: argparse.Namespace) -> int:
+    write_comparison_report(args.runs_dir, args.out, args.title, trajectories=not args.no_trajectories)
     return 0
