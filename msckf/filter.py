@@ -1,0 +1,538 @@
+"""The MSCKF back end (S-MSCKF ``MsckfVio`` without ROS): IMU in, feature observations in, poses out.
+
+Per image (msckf_vio ``featureCallback``): propagate with the buffered IMU samples up to the image time →
+clone the cam0 pose → add the observations → update with the features whose track ended (lost) → prune two
+clones when the window is full (updating with the features they saw) → output the pose → online reset if the
+position σ exploded. Health is checked after every image; divergence raises
+:class:`~msckf.errors.FilterDivergedError`.
+
+Deterministic: no randomness in the back end; same inputs give bit-identical outputs.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from msckf.augmentation import augment
+from msckf.config import MsckfConfig
+from msckf.errors import FilterDivergedError, MsckfInputError
+from msckf.init import StaticInit, static_initialize
+from msckf.propagation import ImuNoise, propagate_samples
+from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
+from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
+from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
+from msckf.types import DepthSource, FeatureObservations, PoseEstimate
+from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
+                          find_redundant_clones, gating_chi2, inject_correction, measurement_blocks,
+                          qr_reference_update, schur_information)
+
+__all__ = ["MsckfFilter", "FrameStats"]
+
+
+@dataclass
+class FrameStats:
+    """What the filter did with one image (for logs, replay and benchmarks). Times in seconds.
+
+    ``over_budget``: the back end took longer than one image period (1 / ``config.frame_rate``), as msckf_vio
+    warns.
+    """
+
+    stamp_s: float = 0.0
+    n_observations: int = 0
+    n_new: int = 0
+    tracking_rate: float = 0.0
+    n_lost: int = 0
+    n_lost_used: int = 0
+    n_pruned_used: int = 0
+    n_gated_out: int = 0
+    n_triangulation_failed: int = 0
+    n_clones: int = 0
+    n_map: int = 0
+    online_reset: bool = False
+    over_budget: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _check_T(T: np.ndarray, name: str) -> np.ndarray:
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise MsckfInputError(f"{name} must be a finite 4x4 transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-4:
+        raise MsckfInputError(f"{name} does not hold a rotation matrix")
+    return T
+
+
+class MsckfFilter:
+    """S-MSCKF back end.
+
+    Args:
+        config: :class:`MsckfConfig`.
+        T_cam0_imu: (4, 4) maps IMU-frame points into cam0 (Kalibr ``cam0/T_cam_imu``); its rotation and
+            translation are the initial extrinsic estimate (the filter refines them).
+        T_cam1_cam0: (4, 4) maps cam0 points into cam1 (Kalibr ``cam1/T_cn_cnm1``); fixed.
+
+    Use :meth:`feed_imu` for every IMU sample and :meth:`feed_features` for every image, in time order.
+    The filter initialises itself from the first ``config.init_imu_samples`` IMU samples (static start),
+    or explicitly with :meth:`initialize`.
+    """
+
+    def __init__(self, config: MsckfConfig, T_cam0_imu: np.ndarray, T_cam1_cam0: np.ndarray) -> None:
+        self.config = config
+        T_ci = _check_T(T_cam0_imu, "T_cam0_imu")
+        T_10 = _check_T(T_cam1_cam0, "T_cam1_cam0")
+        self._R_c_i0 = orthonormalize(T_ci[:3, :3])
+        self._p_i_c0 = -self._R_c_i0.T @ T_ci[:3, 3]
+        self.R_c1_c0 = orthonormalize(T_10[:3, :3])
+        self.t_c1_c0 = T_10[:3, 3].copy()
+        self.noise = ImuNoise(config.gyro_noise, config.gyro_bias_noise, config.acc_noise, config.acc_bias_noise)
+        self.tri_params = TriangulationParams(config.huber_epsilon, config.estimation_precision,
+                                              config.initial_damping, config.outer_loop_max_iteration,
+                                              config.inner_loop_max_iteration)
+        self.clones = CloneStore(config.max_cam_state_size + 2)
+        self.features = FeatureStore(self.clones.capacity)
+        self.state: ImuState | None = None
+        self.P = np.zeros((0, 0))
+        self.g_w = np.array([0.0, 0.0, -9.81])
+        self.init_result: StaticInit | None = None
+        self._imu_t: list[float] = []
+        self._imu_w: list[np.ndarray] = []
+        self._imu_a: list[np.ndarray] = []
+        self._last_imu: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._last_imu_t = -np.inf
+        self._last_frame_t = -np.inf
+        self.n_online_resets = 0
+        self.last_stats = FrameStats()
+
+    # ------------------------------------------------------------------------------------------ input
+    @property
+    def initialized(self) -> bool:
+        return self.state is not None
+
+    def initialize(self, t_s: float, R_world_imu: np.ndarray, p_world: np.ndarray | None = None,
+                   v_world: np.ndarray | None = None, gyro_bias: np.ndarray | None = None,
+                   acc_bias: np.ndarray | None = None, gravity_norm: float = 9.81,
+                   covariance: np.ndarray | None = None) -> None:
+        """Set the initial state explicitly (instead of the static initialisation).
+
+        Args:
+            t_s: state time, s; IMU samples after it propagate the state, images before it are ignored.
+            R_world_imu: (3, 3) IMU → world rotation (world z up). p_world, v_world: m, m/s (default 0).
+            gyro_bias (rad/s), acc_bias (m/s²): default 0. gravity_norm: |g|, m/s².
+            covariance: (21, 21) initial IMU error covariance; default: the configured S-MSCKF one (zero for
+                θ and p).
+        """
+        z3 = np.zeros(3)
+        R = np.asarray(R_world_imu, dtype=np.float64)
+        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+            raise MsckfInputError("initialize: R_world_imu must be a 3x3 rotation matrix")
+        self.state = ImuState(time=float(t_s), R_w_i=orthonormalize(R),
+                              p=np.array(p_world if p_world is not None else z3, dtype=np.float64),
+                              v=np.array(v_world if v_world is not None else self.config.initial_velocity,
+                                         dtype=np.float64),
+                              b_g=np.array(gyro_bias if gyro_bias is not None else z3, dtype=np.float64),
+                              b_a=np.array(acc_bias if acc_bias is not None else z3, dtype=np.float64),
+                              R_c_i=self._R_c_i0.copy(), p_i_c=self._p_i_c0.copy())
+        self.g_w = np.array([0.0, 0.0, -float(gravity_norm)])
+        if covariance is None:
+            self.P = self._initial_cov()
+        else:
+            P = np.asarray(covariance, dtype=np.float64)
+            if P.shape != (IMU_DIM, IMU_DIM):
+                raise MsckfInputError(f"initialize: covariance must be 21x21, got {P.shape}")
+            self.P = 0.5 * (P + P.T)
+        self.clones.clear()
+        self.features.clear()
+        self._drop_imu_before(float(t_s))
+
+    def feed_imu(self, t_s: float, gyro: np.ndarray, accel: np.ndarray) -> None:
+        """Buffer one IMU sample.
+
+        Args:
+            t_s: stamp, s (non-decreasing). gyro: (3,) angular rate, rad/s, IMU frame. accel: (3,) specific
+                force, m/s², IMU frame (reads +|g| upwards at rest).
+        Raises:
+            MsckfInputError: wrong shape, non-finite values or a stamp earlier than the previous one.
+            NonStaticStartError: the static-initialisation window shows motion (a subclass of MsckfInputError).
+                The oldest half of the window is dropped first: a caller that wants to wait for a still period
+                can catch it and keep feeding; initialisation is retried once the window is full again.
+        """
+        t = float(t_s)
+        w = np.asarray(gyro, dtype=np.float64).reshape(-1)
+        a = np.asarray(accel, dtype=np.float64).reshape(-1)
+        if w.shape != (3,) or a.shape != (3,):
+            raise MsckfInputError(f"IMU sample at t={t:.6f} s: gyro and accel must have 3 values")
+        if not (np.isfinite(t) and np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
+            raise MsckfInputError(f"IMU sample at t={t:.6f} s holds non-finite values")
+        if t < self._last_imu_t:
+            raise MsckfInputError(f"IMU stamps go backwards: {t:.6f} s after {self._last_imu_t:.6f} s")
+        self._last_imu_t = t
+        self._imu_t.append(t)
+        self._imu_w.append(w)
+        self._imu_a.append(a)
+        if self.state is None and len(self._imu_t) >= self.config.init_imu_samples:
+            self._static_init()
+
+    def _static_init(self) -> None:
+        c = self.config
+        n = c.init_imu_samples
+        try:
+            res = static_initialize(np.asarray(self._imu_t[:n]), np.asarray(self._imu_w[:n]),
+                                    np.asarray(self._imu_a[:n]), c.init_max_gyro_std, c.init_max_gyro_mean,
+                                    c.init_max_acc_std, c.init_max_acc_drift, c.init_max_gyro_drift)
+        except MsckfInputError:
+            # Slide the window by half, so a caller that catches the error and keeps feeding gets a new try.
+            del self._imu_t[:n // 2], self._imu_w[:n // 2], self._imu_a[:n // 2]
+            raise
+        self.init_result = res
+        # [port] S-MSCKF jumps the state time to the first image (assuming the robot is still at rest);
+        # here the state is propagated from the end of the init window through every later sample.
+        self.initialize(res.t_end, res.R_w_i, gyro_bias=res.gyro_bias, gravity_norm=res.gravity_norm)
+
+    def _initial_cov(self) -> np.ndarray:
+        c = self.config
+        return initial_covariance(c.velocity_cov, c.gyro_bias_cov, c.acc_bias_cov, c.extrinsic_rotation_cov,
+                                  c.extrinsic_translation_cov)
+
+    def _drop_imu_before(self, t: float) -> None:
+        i = 0
+        while i < len(self._imu_t) and self._imu_t[i] < t:
+            i += 1
+        if i:
+            self._last_imu = (self._imu_t[i - 1], self._imu_w[i - 1], self._imu_a[i - 1])
+            del self._imu_t[:i], self._imu_w[:i], self._imu_a[:i]
+
+    # ------------------------------------------------------------------------------------------ images
+    def feed_features(self, obs: FeatureObservations) -> PoseEstimate | None:
+        """Process the features of one image; returns the IMU pose at the image time (None before init).
+
+        Raises:
+            MsckfInputError: malformed observations or a stamp not after the previous image.
+            FilterDivergedError: the state became non-finite, the covariance lost positive definiteness or the
+                speed exceeded ``config.max_speed``.
+        """
+        if not isinstance(obs, FeatureObservations):
+            raise MsckfInputError(f"feed_features expects FeatureObservations, got {type(obs).__name__}")
+        stamp = float(obs.stamp_s)
+        if not np.isfinite(stamp) or stamp <= self._last_frame_t:
+            raise MsckfInputError(f"image stamps must increase: {stamp:.6f} s after {self._last_frame_t:.6f} s")
+        self._last_frame_t = stamp
+        ids = np.asarray(obs.ids, dtype=np.int64)
+        cam0 = np.asarray(obs.cam0_xy, dtype=np.float64)
+        if len(ids) and (not np.all(np.isfinite(cam0))):
+            raise MsckfInputError(f"image at t={stamp:.6f} s: non-finite cam0 coordinates")
+        if len(np.unique(ids)) != len(ids):
+            raise MsckfInputError(f"image at t={stamp:.6f} s: duplicate feature ids")
+        if self.state is None or stamp < self.state.time:
+            return None
+        st = FrameStats(stamp_s=stamp, n_observations=len(ids))
+        tm = st.timings
+        t0 = time.perf_counter()
+
+        self._propagate_to(stamp)
+        t1 = time.perf_counter()
+        tm["propagate"] = t1 - t0
+
+        self.state.id += 1
+        self.P = augment(self.state, self.P, self.clones)
+        cur_slot = self.clones.order[-1]
+        tracking_rate = self._add_observations(obs, cur_slot, st)
+        t2 = time.perf_counter()
+        tm["augment"] = t2 - t1
+
+        self._remove_lost_features(cur_slot, st)
+        t3 = time.perf_counter()
+        tm["lost_update"] = t3 - t2
+
+        self._prune(tracking_rate, st)
+        t4 = time.perf_counter()
+        tm["prune"] = t4 - t3
+
+        self._check_health(stamp)
+        pose = self._pose(stamp)
+        st.online_reset = self._online_reset()
+        st.n_clones = len(self.clones)
+        st.n_map = self.features.n_alive
+        tm["total"] = time.perf_counter() - t0
+        st.over_budget = tm["total"] > 1.0 / self.config.frame_rate
+        self.last_stats = st
+        return pose
+
+    def _propagate_to(self, stamp: float) -> None:
+        st = self.state
+        i = 0
+        while i < len(self._imu_t) and self._imu_t[i] <= stamp:
+            i += 1
+        if i:
+            times = np.asarray(self._imu_t[:i])
+            gy = np.asarray(self._imu_w[:i])
+            ac = np.asarray(self._imu_a[:i])
+            keep = times > st.time
+            self.P = propagate_samples(st, self.P, times[keep], gy[keep], ac[keep], self.noise, self.g_w,
+                                       self.config.observability_constrained)
+            self._last_imu = (self._imu_t[i - 1], self._imu_w[i - 1], self._imu_a[i - 1])
+            del self._imu_t[:i], self._imu_w[:i], self._imu_a[:i]
+        if self.config.propagate_to_image_time and self._last_imu is not None and st.time < stamp:
+            # Hold the latest sample over the rest of the interval so the clone sits exactly at the image time.
+            _, w, a = self._last_imu
+            self.P = propagate_samples(st, self.P, np.array([stamp]), w[None], a[None], self.noise, self.g_w,
+                                       self.config.observability_constrained)
+
+    def _add_observations(self, obs: FeatureObservations, slot: int, st: FrameStats) -> float:
+        fs = self.features
+        ids = np.asarray(obs.ids, dtype=np.int64)
+        rows = fs.lookup(ids)
+        new = rows < 0
+        curr = fs.n_alive
+        tracked = int(np.count_nonzero(~new))
+        tracking_rate = tracked / curr if curr > 0 else 0.0
+        rows[new] = fs.add(ids[new])
+        src = np.asarray(obs.source, dtype=np.uint8).reshape(-1)
+        cam1 = np.asarray(obs.cam1_xy, dtype=np.float64).copy()
+        cam1[src == DepthSource.MONO] = np.nan
+        depth = np.asarray(obs.depth_m, dtype=np.float64).copy()
+        depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
+        fs.obs[rows, slot, 0:2] = obs.cam0_xy
+        fs.obs[rows, slot, 2:4] = cam1
+        fs.depth[rows, slot] = depth
+        fs.src[rows, slot] = src
+        fs.has[rows, slot] = True
+        st.n_new = int(np.count_nonzero(new))
+        st.tracking_rate = tracking_rate
+        return tracking_rate
+
+    # ------------------------------------------------------------------------------------------ features
+    def _order(self) -> np.ndarray:
+        return np.asarray(self.clones.order, dtype=np.int64)
+
+    @staticmethod
+    def _compact(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per row, the positions of True entries first (time order kept), padded to the row maximum."""
+        n = int(mask.sum(axis=1).max()) if len(mask) else 0
+        cols = np.argsort(~mask, axis=1, kind="stable")[:, :max(n, 1)]
+        valid = np.take_along_axis(mask, cols, axis=1)
+        return cols, valid
+
+    def _motion_ok(self, rows: np.ndarray, cols: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """S-MSCKF ``checkMotion`` (vectorised) with the mono threshold for tracks without any cam1."""
+        order = self._order()
+        fs, cl = self.features, self.clones
+        ar = np.arange(len(rows))
+        n_obs = valid.sum(axis=1)
+        first = order[cols[:, 0]]
+        last = order[cols[ar, n_obs - 1]]
+        o = fs.obs[rows, first]
+        d = np.concatenate([o[:, :2], np.ones((len(rows), 1))], axis=1)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d = np.einsum("kij,kj->ki", cl.R_w_c[first], d)
+        tr = cl.p[last] - cl.p[first]
+        orth = tr - np.sum(tr * d, axis=1, keepdims=True) * d
+        slots = order[cols]
+        any_cam1 = np.any(np.isfinite(fs.obs[rows[:, None], slots, 2]) & valid, axis=1)
+        thr = np.where(any_cam1, self.config.feature_translation_threshold, self.config.mono_translation_threshold)
+        return np.linalg.norm(orth, axis=1) > thr
+
+    def _triangulate(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
+        """Initialise the positions of features (rows) from all their observations; returns ok (bool)."""
+        if len(rows) == 0:
+            return np.zeros(0, dtype=bool)
+        fs, cl = self.features, self.clones
+        order = self._order()
+        mask = fs.has[rows][:, order]
+        cols, valid = self._compact(mask)
+        ok = self._motion_ok(rows, cols, valid)
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            r_i = rows[idx]
+            slots = order[cols[idx]]
+            v_i = valid[idx]
+            R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], fs.obs[r_i[:, None], slots],
+                                                    v_i, self.R_c1_c0, self.t_c1_c0)
+            a_slot = slots[np.arange(len(idx)), anchor]
+            a_depth = fs.depth[r_i, a_slot] if self.config.depth_seed else None
+            x0 = initial_guess(R, t, z, vv, 2 * anchor, a_depth, self.tri_params.fallback_inverse_depth)
+            p_a, good, _ = triangulate_batch(R, t, z, vv, x0, self.tri_params)
+            p_w = np.einsum("kij,kj->ki", cl.R_w_c[a_slot], p_a) + cl.p[a_slot]
+            gr = r_i[good]
+            fs.pos[gr] = p_w[good]
+            fs.initialized[gr] = True
+            ok[idx[~good]] = False
+        st.n_triangulation_failed += int(np.count_nonzero(~ok))
+        return ok
+
+    def _measurement_spec(self) -> MeasurementSpec:
+        c = self.config
+        return MeasurementSpec(self.R_c1_c0, self.t_c1_c0, self.g_w, c.feature_noise,
+                               c.observability_constrained, c.depth_row, c.depth_inv_sigma, c.depth_rel_sigma)
+
+    def _batch(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec) -> FeatureBatch:
+        """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order)."""
+        fs, cl = self.features, self.clones
+        order = self._order()
+        cols, valid = self._compact(clone_mask)
+        slots = order[cols]
+        rr = rows[:, None]
+        use_depth_row = (fs.src[rr, slots] == DepthSource.DEPTH_MAP) if spec.depth_row \
+            else np.zeros(slots.shape, dtype=bool)
+        return measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
+                                  cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
+                                  cols, len(order))
+
+    def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
+        """Gate and apply one EKF update with the given features; returns how many were used."""
+        if len(rows) == 0:
+            return 0
+        c = self.config
+        spec = self._measurement_spec()
+        sigma = c.feature_noise
+        n_cl = len(self.clones)
+        n_obs = clone_mask.sum(axis=1)
+        accepted: list[FeatureBatch] = []
+        acc_rows_count: list[np.ndarray] = []
+        for grp in bucket_by_length(n_obs):
+            b = self._batch(rows[grp], clone_mask[grp], spec)
+            gamma = gating_chi2(self.P, b, sigma)
+            dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[grp]
+            ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
+            st.n_gated_out += int(np.count_nonzero(~ok))
+            if np.any(ok):
+                accepted.append(b.subset(ok))
+                acc_rows_count.append(b.n_rows[ok] - 3)
+        if not accepted:
+            return 0
+        if c.max_update_rows > 0:
+            counts = np.concatenate(acc_rows_count)
+            before = np.cumsum(counts) - counts
+            keep_all = before <= c.max_update_rows
+            out, start = [], 0
+            for b in accepted:
+                k = len(b.pos)
+                keep = keep_all[start:start + k]
+                start += k
+                if np.any(keep):
+                    out.append(b.subset(keep))
+            accepted = out
+        used = sum(len(b.pos) for b in accepted)
+        if c.update_method == "schur":
+            Lam = np.zeros((6 * n_cl, 6 * n_cl))
+            eta = np.zeros(6 * n_cl)
+            for b in accepted:
+                L_b, e_b, _ = schur_information(b, n_cl)
+                Lam += L_b
+                eta += e_b
+            dx, P_new = ekf_update_information(self.P, Lam, eta, sigma)
+        else:
+            nmax = max(b.Hx.shape[1] for b in accepted)
+            padded = [self._pad_batch(b, nmax, n_cl) for b in accepted]
+            merged = FeatureBatch(*(np.concatenate([getattr(b, f) for b in padded])
+                                    for f in ("pos", "Hx", "Hf", "r", "rows")))
+            dx, P_new, _ = qr_reference_update(self.P, merged, sigma, n_cl)
+        self.P = P_new
+        inject_correction(self.state, self.clones, dx)
+        return used
+
+    @staticmethod
+    def _pad_batch(b: FeatureBatch, n: int, dummy: int) -> FeatureBatch:
+        k, m = b.pos.shape
+        if m == n:
+            return b
+        pad = n - m
+        return FeatureBatch(np.pad(b.pos, ((0, 0), (0, pad)), constant_values=dummy),
+                            np.pad(b.Hx, ((0, 0), (0, pad), (0, 0), (0, 0))),
+                            np.pad(b.Hf, ((0, 0), (0, pad), (0, 0), (0, 0))),
+                            np.pad(b.r, ((0, 0), (0, pad), (0, 0))),
+                            np.pad(b.rows, ((0, 0), (0, pad), (0, 0))))
+
+    def _remove_lost_features(self, cur_slot: int, st: FrameStats) -> None:
+        fs = self.features
+        alive = fs.alive_rows()
+        lost = alive[~fs.has[alive, cur_slot]]
+        st.n_lost = len(lost)
+        if len(lost) == 0:
+            return
+        order = self._order()
+        mask = fs.has[lost][:, order]
+        n_obs = mask.sum(axis=1)
+        cand = lost[n_obs >= 3]
+        need = cand[~fs.initialized[cand]]
+        if len(need):
+            self._triangulate(need, st)
+        use = cand[fs.initialized[cand]]
+        if len(use):
+            m = fs.has[use][:, order]
+            st.n_lost_used = self._update(use, m, m.sum(axis=1) - 1, st)
+        fs.remove(lost)
+
+    def _prune(self, tracking_rate: float, st: FrameStats) -> None:
+        c = self.config
+        cl, fs = self.clones, self.features
+        if len(cl) < c.max_cam_state_size:
+            return
+        rm = find_redundant_clones(cl, c.rotation_threshold, c.translation_threshold, tracking_rate,
+                                   c.tracking_rate_threshold)
+        order = self._order()
+        rm_pos = cl.position_in_order(np.asarray(rm))
+        alive = fs.alive_rows()
+        inv = fs.has[alive][:, rm]
+        cnt = inv.sum(axis=1)
+        multi = alive[cnt >= 2]
+        if len(multi):
+            need = multi[~fs.initialized[multi]]
+            if len(need):
+                self._triangulate(need, st)
+            use = multi[fs.initialized[multi]]
+            if len(use):
+                m = np.zeros((len(use), len(order)), dtype=bool)
+                m[:, rm_pos] = fs.has[use][:, rm]
+                st.n_pruned_used = self._update(use, m, m.sum(axis=1), st)
+        fs.has[:, rm] = False
+        fs.obs[:, rm] = np.nan
+        fs.depth[:, rm] = np.nan
+        keep = np.ones(self.P.shape[0], dtype=bool)
+        for p in rm_pos:
+            keep[IMU_DIM + 6 * p: IMU_DIM + 6 * p + 6] = False
+        self.P = self.P[np.ix_(keep, keep)]
+        cl.remove(list(rm))
+
+    # ------------------------------------------------------------------------------------------ output
+    def _check_health(self, stamp: float) -> None:
+        s = self.state
+        vals = (s.R_w_i, s.p, s.v, s.b_g, s.b_a, s.R_c_i, s.p_i_c)
+        if not all(np.all(np.isfinite(x)) for x in vals):
+            raise FilterDivergedError("non-finite IMU state", stamp)
+        if not np.all(np.isfinite(self.P)):
+            raise FilterDivergedError("non-finite covariance", stamp)
+        speed = float(np.linalg.norm(s.v))
+        if speed > self.config.max_speed:
+            raise FilterDivergedError(f"speed {speed:.1f} m/s exceeds max_speed {self.config.max_speed:g} m/s",
+                                      stamp)
+        d = np.diag(self.P)
+        scale = max(1.0, float(d.max()))
+        if d.min() < -1e-9 * scale:
+            raise FilterDivergedError(f"negative variance {d.min():.3g} in the covariance", stamp)
+        try:
+            np.linalg.cholesky(self.P + np.eye(len(d)) * (1e-9 * scale))
+        except np.linalg.LinAlgError:
+            raise FilterDivergedError("covariance is not positive semi-definite", stamp) from None
+
+    def _pose(self, stamp: float) -> PoseEstimate:
+        s = self.state
+        return PoseEstimate(stamp_s=stamp, p_world=s.p.copy(), q_world_imu_xyzw=matrix_to_quat_xyzw(s.R_w_i),
+                            v_world=s.v.copy(), gyro_bias=s.b_g.copy(), acc_bias=s.b_a.copy(),
+                            cov_diag=np.diag(self.P)[:IMU_DIM].copy())
+
+    def _online_reset(self) -> bool:
+        thr = self.config.position_std_threshold
+        if thr <= 0:
+            return False
+        std = np.sqrt(np.maximum(np.diag(self.P)[12:15], 0.0))
+        if np.all(std < thr):
+            return False
+        self.clones.clear()
+        self.features.clear()
+        self.P = self._initial_cov()
+        self.n_online_resets += 1
+        return True

@@ -1,0 +1,418 @@
+"""MSCKF measurement update: Jacobians, feature marginalisation, χ² gating, EKF update, pruning policy.
+
+Measurement model (msckf.md §1.7), per feature and per clone that observed it, with the feature at ``p_f``
+(world) and the clone's cam0 at ``(R_w_c, p_c)``: ``p0 = R_c_w (p_f − p_c)``, ``p1 = R_c1_c0 p0 + t_c1_c0``.
+Rows (up to 5 per clone; unused rows are masked out):
+
+* ``u0, v0 = p0[:2]/p0[2]``                                    (always)
+* ``u1, v1 = p1[:2]/p1[2]``                                    (when the observation has a cam1 coordinate:
+  stereo match or depth-implied)
+* ``ρ = 1/p0[2]`` against ``1/d_meas``                          (``depth_row`` ablation: replaces u1, v1 of
+  depth-implied observations; whitened to the feature σ by scaling with ``σ_f / σ_ρ``)
+
+Jacobians (local error, :mod:`msckf.rotation`): ``∂p0/∂δθ_c = [p0]×``, ``∂p0/∂δp_c = −R_c_w``,
+``∂p0/∂p_f = R_c_w``. With OC-EKF, each clone's 6-column block ``A`` is replaced by
+``A − A u (uᵀu)⁻¹ uᵀ`` with ``u = [R_c_w,null g ; [p_f − p_c,null]× g]`` and then ``H_f = −A[:, 3:6]``.
+
+Marginalising the feature. S-MSCKF projects each feature's residual on the left null space of its H_f
+(4M−3 rows) and QR-compresses the stacked system. Because the EKF update depends on the data only through
+``HᵀH`` and ``Hᵀr`` (R = σ²I), the same update follows from the Schur complement
+``Λ = H_xᵀH_x − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀH_x``, ``η = H_xᵀr − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀr``, where H_xᵀH_x is
+block-diagonal per clone — so the cost grows with features × clones, not with rows × columns². The update is
+then ``δx = P_:c (Λ̃ P_cc + I)⁻¹ η̃`` and ``P⁺ = P − P_:c (Λ̃ P_cc + I)⁻¹ Λ̃ P_c:`` (Λ̃ = Λ/σ², η̃ = η/σ²;
+push-through identity, exact). ``method="qr"`` runs the literal S-MSCKF path (per-feature QR null space,
+stacked QR, Joseph-form Kalman update) — tests check the two agree.
+
+χ² gate: per feature, ``γ = r_oᵀ(H_o P H_oᵀ + σ²I)⁻¹ r_o`` on the projected residual, computed without the
+projection as ``γ = rᵀS⁻¹r − (H_fᵀS⁻¹r)ᵀ(H_fᵀS⁻¹H_f)⁻¹(H_fᵀS⁻¹r)`` with ``S = H_x P H_xᵀ + σ²I`` (the
+projected quadratic form equals the feature-marginalised one), batched over features of similar track length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.stats import chi2
+
+from msckf.rotation import rotation_angle, so3_exp
+from msckf.state import IMU_DIM, CloneStore, ImuState
+
+__all__ = ["MeasurementSpec", "FeatureBatch", "measurement_blocks", "gating_chi2", "chi2_threshold",
+           "schur_information", "ekf_update_information", "qr_reference_update", "inject_correction",
+           "find_redundant_clones", "bucket_by_length"]
+
+
+@dataclass(frozen=True)
+class MeasurementSpec:
+    """Fixed inputs of the measurement model.
+
+    Attributes:
+        R_c1_c0: (3, 3) cam0 → cam1 rotation; t_c1_c0: (3,) m.
+        g_w: (3,) world gravity, m/s². feature_noise: σ in normalised units.
+        oc: OC-EKF projection of H. depth_row: use inverse-depth rows for depth-implied observations.
+        depth_inv_sigma (1/m), depth_rel_sigma (fraction): σ_ρ = sqrt(depth_inv_sigma² + (depth_rel_sigma/z)²).
+    """
+
+    R_c1_c0: np.ndarray
+    t_c1_c0: np.ndarray
+    g_w: np.ndarray
+    feature_noise: float
+    oc: bool = True
+    depth_row: bool = False
+    depth_inv_sigma: float = 0.01
+    depth_rel_sigma: float = 0.05
+
+
+@dataclass
+class FeatureBatch:
+    """Per-feature, per-clone measurement blocks of k features, padded to n clones each.
+
+    Attributes:
+        pos: (k, n) clone order positions (0 = oldest); ``n_clones`` (the dummy) where the pair is padding.
+        Hx: (k, n, R, 6) Jacobian w.r.t. [δθ_c, δp_c] of that clone; Hf: (k, n, R, 3) w.r.t. the feature;
+        r: (k, n, R) residual z − h; rows: (k, n, R) valid-row mask (rows 0-1 cam0, 2-3 cam1, 4 depth);
+        R = 5 with depth rows enabled, else 4.
+    """
+
+    pos: np.ndarray
+    Hx: np.ndarray
+    Hf: np.ndarray
+    r: np.ndarray
+    rows: np.ndarray
+
+    @property
+    def n_rows(self) -> np.ndarray:
+        """(k,) valid rows per feature."""
+        return self.rows.sum(axis=(1, 2))
+
+    def subset(self, sel: np.ndarray) -> "FeatureBatch":
+        return FeatureBatch(self.pos[sel], self.Hx[sel], self.Hf[sel], self.r[sel], self.rows[sel])
+
+
+def bucket_by_length(n_obs: np.ndarray, edges: tuple[int, ...] = (8,)) -> list[np.ndarray]:
+    """Split feature indices into groups of similar observation count (limits padding waste)."""
+    groups = []
+    lo = 0
+    for hi in list(edges) + [np.iinfo(np.int64).max]:
+        sel = np.flatnonzero((n_obs > lo) & (n_obs <= hi))
+        if len(sel):
+            groups.append(sel)
+        lo = hi
+    return groups
+
+
+def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray, p_c: np.ndarray,
+                       R_c_w_null: np.ndarray, p_c_null: np.ndarray, obs: np.ndarray, depth: np.ndarray,
+                       use_depth_row: np.ndarray, has: np.ndarray, pos: np.ndarray, dummy_pos: int
+                       ) -> FeatureBatch:
+    """Residuals and Jacobians of k features over their (padded) n clones.
+
+    Args:
+        spec: measurement constants. p_f: (k, 3) feature positions, world, m.
+        R_w_c, p_c: (k, n, 3, 3), (k, n, 3) clone cam0 poses; R_c_w_null, p_c_null: OC first estimates.
+        obs: (k, n, 4) normalised (u0, v0, u1, v1), NaN cam1 where monocular. depth: (k, n) measured Z (m) or NaN.
+        use_depth_row: (k, n) bool, observations whose depth enters as an inverse-depth row (cam1 rows dropped).
+        has: (k, n) bool valid pairs. pos: (k, n) clone order positions. dummy_pos: position for padding.
+    Returns:
+        The :class:`FeatureBatch`.
+    """
+    k, n = has.shape
+    R_c_w = np.swapaxes(R_w_c, -1, -2)
+    d = p_f[:, None, :] - p_c                                           # (k, n, 3)
+    p0 = (R_c_w @ d[..., None])[..., 0]
+    p1 = p0 @ spec.R_c1_c0.T + spec.t_c1_c0
+    z0 = np.where(np.abs(p0[..., 2]) > 1e-9, p0[..., 2], 1e-9)
+    z1 = np.where(np.abs(p1[..., 2]) > 1e-9, p1[..., 2], 1e-9)
+
+    # d(projection)/d(point): (k, n, 2, 3)
+    def proj_jac(p: np.ndarray, z: np.ndarray) -> np.ndarray:
+        J = np.zeros(p.shape[:-1] + (2, 3))
+        J[..., 0, 0] = 1.0 / z
+        J[..., 1, 1] = 1.0 / z
+        J[..., 0, 2] = -p[..., 0] / (z * z)
+        J[..., 1, 2] = -p[..., 1] / (z * z)
+        return J
+
+    J0 = proj_jac(p0, z0)
+    J1 = proj_jac(p1, z1) @ spec.R_c1_c0                                 # w.r.t. p0
+    Jd = np.zeros((k, n, 1, 3))
+    Jd[..., 0, 2] = -1.0 / (z0 * z0)
+    Jall = np.concatenate([J0, J1, Jd], axis=2)                          # (k, n, 5, 3) w.r.t. p0
+    n_rows = 5 if spec.depth_row else 4
+
+    # whitening of the depth row to the feature σ
+    sig_f = spec.feature_noise
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sig_rho = np.sqrt(spec.depth_inv_sigma ** 2 + (spec.depth_rel_sigma / depth) ** 2)
+    depth_ok = use_depth_row & np.isfinite(depth) & (depth > 0) & has
+    scale = np.where(depth_ok, sig_f / np.where(depth_ok, sig_rho, 1.0), 0.0)
+    Jall[..., 4, :] *= scale[..., None]
+
+    # dp0/d[δθ_c, δp_c] = [ [p0]× , −R_c_w ];  dp0/dp_f = R_c_w
+    sk = np.zeros((k, n, 3, 3))
+    sk[..., 0, 1], sk[..., 0, 2] = -p0[..., 2], p0[..., 1]
+    sk[..., 1, 0], sk[..., 1, 2] = p0[..., 2], -p0[..., 0]
+    sk[..., 2, 0], sk[..., 2, 1] = -p0[..., 1], p0[..., 0]
+    dp_dx = np.concatenate([sk, -R_c_w], axis=-1)                         # (k, n, 3, 6)
+    Hx = Jall @ dp_dx                                                     # (k, n, 5, 6)
+    Jall = Jall[:, :, :n_rows]
+    Hx = Hx[:, :, :n_rows]
+    if spec.oc:
+        dn = p_f[:, None, :] - p_c_null
+        gx, gy, gz = spec.g_w
+        cross = np.stack([dn[..., 1] * gz - dn[..., 2] * gy, dn[..., 2] * gx - dn[..., 0] * gz,
+                          dn[..., 0] * gy - dn[..., 1] * gx], axis=-1)
+        u = np.concatenate([R_c_w_null @ spec.g_w, cross], axis=-1)      # (k, n, 6)
+        Au = (Hx @ u[..., None])[..., 0]
+        uu = np.sum(u * u, axis=-1)
+        Hx = Hx - Au[..., None] * (u / uu[..., None])[:, :, None, :]
+        Hf = -Hx[..., 3:6]
+    else:
+        Hf = Jall @ R_c_w
+
+    h = np.concatenate([p0[..., :2] / z0[..., None], p1[..., :2] / z1[..., None], (1.0 / z0)[..., None]],
+                       axis=-1)                                           # (k, n, 5)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        zmeas = np.concatenate([obs, (1.0 / depth)[..., None]], axis=-1)
+    r = zmeas - h
+    r[..., 4] *= scale
+    cam1_ok = has & np.isfinite(obs[..., 2]) & np.isfinite(obs[..., 3]) & ~depth_ok
+    rows = np.stack([has, has, cam1_ok, cam1_ok, depth_ok], axis=-1)[..., :n_rows]
+    r = r[..., :n_rows]
+    rows &= np.isfinite(r)
+    Hx = np.where(rows[..., None], Hx, 0.0)
+    Hf = np.where(rows[..., None], Hf, 0.0)
+    r = np.where(rows, r, 0.0)
+    pos = np.where(has, pos, dummy_pos)
+    return FeatureBatch(pos, Hx, Hf, r, rows)
+
+
+@lru_cache(maxsize=64)
+def _chi2_table(quantile: float, max_dof: int = 1000) -> np.ndarray:
+    t = np.full(max_dof + 1, np.inf)
+    t[1:] = chi2.ppf(quantile, np.arange(1, max_dof + 1))
+    return t
+
+
+def chi2_threshold(quantile: float, dof: np.ndarray) -> np.ndarray:
+    """χ² quantile for each dof (dof ≤ 0 → −inf, so the test rejects)."""
+    table = _chi2_table(float(quantile))
+    dof = np.asarray(dof, dtype=np.int64)
+    out = np.where(dof >= 1, table[np.clip(dof, 0, len(table) - 1)], -np.inf)
+    big = dof >= len(table)
+    if np.any(big):
+        out = np.where(big, chi2.ppf(quantile, np.maximum(dof, 1)), out)
+    return out
+
+
+def _gather_P_blocks(P: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """(k, n, n, 6, 6) clone-clone covariance blocks for order positions ``pos`` (dummy → zeros)."""
+    n_cl = (P.shape[0] - IMU_DIM) // 6
+    Pc = P[IMU_DIM:, IMU_DIM:].reshape(n_cl, 6, n_cl, 6).transpose(0, 2, 1, 3)
+    Pc = np.pad(Pc, ((0, 1), (0, 1), (0, 0), (0, 0)))                    # dummy row/col of zeros
+    return Pc[pos[:, :, None], pos[:, None, :]]
+
+
+def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float) -> np.ndarray:
+    """χ² statistic γ of each feature's null-space-projected residual (see module doc). (k,) values.
+
+    Features whose H_f is rank deficient get γ = inf.
+    """
+    k, n, R, _ = batch.Hx.shape
+    Pg = _gather_P_blocks(P, batch.pos)                                   # (k, n, n, 6, 6)
+    HP = batch.Hx[:, :, None] @ Pg                                        # (k, n, n, R, 6)
+    S = (HP @ np.swapaxes(batch.Hx, -1, -2)[:, None]).transpose(0, 1, 3, 2, 4).reshape(k, n * R, n * R)
+    rows = batch.rows.reshape(k, n * R)
+    S = S + np.eye(n * R) * np.where(rows, sigma * sigma, 1.0)[:, :, None]
+    r = batch.r.reshape(k, n * R, 1)
+    Hf = batch.Hf.reshape(k, n * R, 3)
+    X = np.linalg.solve(S, np.concatenate([r, Hf], axis=2))
+    Xr, Xf = X[..., :1], X[..., 1:]
+    g0 = np.sum(r * Xr, axis=(1, 2))
+    b = (np.swapaxes(Hf, 1, 2) @ Xr)[..., 0]
+    C = np.swapaxes(Hf, 1, 2) @ Xf
+    gamma = np.full(k, np.inf)
+    det_ok = np.linalg.det(C) > 1e-300
+    if np.any(det_ok):
+        y = np.linalg.solve(C[det_ok], b[det_ok][..., None])[..., 0]
+        gamma[det_ok] = g0[det_ok] - np.einsum("ka,ka->k", b[det_ok], y)
+    return gamma
+
+
+def schur_information(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Information of the feature-marginalised measurements of a batch, over all clones.
+
+    Returns:
+        Lam (6C, 6C) = Σ H_oᵀ H_o, eta (6C,) = Σ H_oᵀ r_o (unscaled by σ), and ok (k,) features whose
+        H_fᵀH_f was invertible (the others contribute nothing).
+    """
+    k, n, R, _ = batch.Hx.shape
+    Hx, Hf, r, pos = batch.Hx, batch.Hf, batch.r, batch.pos
+    HfT = np.swapaxes(Hf, -1, -2)                                         # (k, n, 3, R)
+    Cf = (HfT @ Hf).sum(axis=1)                                           # H_fᵀH_f, (k, 3, 3)
+    ok = np.all(np.isfinite(Cf), axis=(1, 2))
+    ok &= np.linalg.det(np.where(ok[:, None, None], Cf, np.eye(3))) > 1e-300
+    Lam = np.zeros((6 * n_clones, 6 * n_clones))
+    eta = np.zeros(6 * n_clones)
+    if not np.all(ok):
+        Hx, Hf, HfT, r, pos, Cf = Hx[ok], Hf[ok], HfT[ok], r[ok], pos[ok], Cf[ok]
+        k = int(ok.sum())
+    if k == 0:
+        return Lam, eta, ok
+    # work on the clones this batch touches only (2 for a pruning update)
+    active = np.unique(pos[pos < n_clones])
+    m = len(active)
+    lut = np.full(n_clones + 1, m)
+    lut[active] = np.arange(m)
+    lp = lut[pos]                                                         # (k, n) local index, m = padding
+    HxT = np.swapaxes(Hx, -1, -2)                                         # (k, n, 6, R)
+    D = (HxT @ Hx).reshape(-1, 36)                                        # per-pair H_xᵀH_x blocks
+    e_d = (HxT @ r[..., None]).reshape(-1, 6)
+    onehot = np.zeros((k * n, m + 1))
+    onehot[np.arange(k * n), lp.reshape(-1)] = 1.0
+    diag = (onehot.T @ D)[:m].reshape(m, 6, 6)
+    eta_a = (onehot.T @ e_d)[:m].reshape(-1)
+    B = HxT @ Hf                                                          # H_xᵀH_f per pair, (k, n, 6, 3)
+    hr = (HfT @ r[..., None]).sum(axis=1)[..., 0]                         # H_fᵀr, (k, 3)
+    Cinv = np.linalg.inv(Cf)
+    Bg = np.zeros((k, m + 1, 6, 3))
+    Bg[np.arange(k)[:, None], lp] = B                                     # padding lands on the dummy column
+    Bg = Bg[:, :m].reshape(k, 6 * m, 3)
+    E = Bg @ Cinv                                                         # (k, 6m, 3)
+    Lam_a = -(E.transpose(1, 0, 2).reshape(6 * m, 3 * k) @ Bg.transpose(1, 0, 2).reshape(6 * m, 3 * k).T)
+    eta_a -= (E @ hr[..., None]).sum(axis=0)[..., 0]
+    for c in range(m):
+        Lam_a[6 * c:6 * c + 6, 6 * c:6 * c + 6] += diag[c]
+    idx6 = (6 * active[:, None] + np.arange(6)).reshape(-1)
+    Lam[np.ix_(idx6, idx6)] = 0.5 * (Lam_a + Lam_a.T)
+    eta[idx6] = eta_a
+    return Lam, eta, ok
+
+
+def ekf_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigma: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """EKF update from the information (Λ, η) of measurements on the clone block (σ² I noise).
+
+    Only clones with non-zero information are involved: with c those columns,
+    ``δx = P_:c (Λ̃_cc P_cc + I)⁻¹ η̃_c`` and ``P⁺ = P − P_:c (Λ̃_cc P_cc + I)⁻¹ Λ̃_cc P_c:``.
+
+    Returns:
+        (δx (n,), P⁺ (n, n) symmetrised).
+    """
+    n = P.shape[0]
+    n_cl = (n - IMU_DIM) // 6
+    blk_active = np.any(np.abs(Lam).reshape(n_cl, 6, -1).max(axis=2) > 0, axis=1)
+    cols6 = np.flatnonzero(np.repeat(blk_active, 6))
+    if len(cols6) == 0:
+        return np.zeros(n), P
+    L = Lam[np.ix_(cols6, cols6)] / (sigma * sigma)
+    e = eta[cols6] / (sigma * sigma)
+    gidx = IMU_DIM + cols6
+    P_c = P[:, gidx]                                                      # (n, m)
+    P_cc = P_c[gidx]
+    M = L @ P_cc + np.eye(len(cols6))
+    sol = np.linalg.solve(M, np.concatenate([L, e[:, None]], axis=1))
+    W = sol[:, :-1]
+    W = 0.5 * (W + W.T)
+    y = sol[:, -1]
+    dx = P_c @ y
+    P_new = P - P_c @ W @ P_c.T
+    P_new = 0.5 * (P_new + P_new.T)
+    return dx, P_new
+
+
+def qr_reference_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Literal S-MSCKF path for checking: per-feature QR null space of H_f, stacked QR compression,
+    Kalman update in Joseph form. Also returns each feature's projected χ² γ computed from H_o directly.
+
+    Returns:
+        (δx, P⁺, gamma (k,)).
+    """
+    k, n, R, _ = batch.Hx.shape
+    ncol = 6 * n_clones
+    Hs, rs, gam = [], [], np.full(k, np.inf)
+    Pcc = P[IMU_DIM:, IMU_DIM:]
+    for f in range(k):
+        rows = batch.rows[f].reshape(-1)
+        m = int(rows.sum())
+        if m <= 3:
+            continue
+        Hx = np.zeros((n * R, ncol))
+        for j in range(n):
+            c = batch.pos[f, j]
+            if c < n_clones:
+                Hx[j * R:(j + 1) * R, 6 * c:6 * c + 6] = batch.Hx[f, j]
+        Hx = Hx[rows]
+        Hf = batch.Hf[f].reshape(-1, 3)[rows]
+        r = batch.r[f].reshape(-1)[rows]
+        Q, _ = np.linalg.qr(Hf, mode="complete")
+        Q2 = Q[:, 3:]
+        Ho, ro = Q2.T @ Hx, Q2.T @ r
+        S = Ho @ Pcc @ Ho.T + sigma * sigma * np.eye(m - 3)
+        gam[f] = float(ro @ np.linalg.solve(S, ro))
+        Hs.append(Ho)
+        rs.append(ro)
+    if not Hs:
+        return np.zeros(P.shape[0]), P, gam
+    H = np.vstack(Hs)
+    r = np.concatenate(rs)
+    if H.shape[0] > H.shape[1]:
+        Raug = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")
+        H, r = Raug[:ncol, :ncol], Raug[:ncol, ncol]
+    Hfull = np.zeros((H.shape[0], P.shape[0]))
+    Hfull[:, IMU_DIM:] = H
+    S = Hfull @ P @ Hfull.T + sigma * sigma * np.eye(H.shape[0])
+    K = np.linalg.solve(S, Hfull @ P).T
+    dx = K @ r
+    IKH = np.eye(P.shape[0]) - K @ Hfull
+    P_new = IKH @ P @ IKH.T + sigma * sigma * K @ K.T
+    return dx, 0.5 * (P_new + P_new.T), gam
+
+
+def inject_correction(state: ImuState, clones: CloneStore, dx: np.ndarray) -> None:
+    """Apply an error-state correction to the nominal IMU state and the clones (in place)."""
+    state.R_w_i = state.R_w_i @ so3_exp(dx[0:3])
+    state.b_g = state.b_g + dx[3:6]
+    state.v = state.v + dx[6:9]
+    state.b_a = state.b_a + dx[9:12]
+    state.p = state.p + dx[12:15]
+    state.R_c_i = so3_exp(-dx[15:18]) @ state.R_c_i
+    state.p_i_c = state.p_i_c + dx[18:21]
+    if clones.order:
+        order = np.asarray(clones.order)
+        d = dx[IMU_DIM:].reshape(-1, 6)
+        clones.R_w_c[order] = clones.R_w_c[order] @ so3_exp(d[:, 0:3])
+        clones.p[order] = clones.p[order] + d[:, 3:6]
+
+
+def find_redundant_clones(clones: CloneStore, rotation_threshold: float, translation_threshold: float,
+                          tracking_rate: float, tracking_rate_threshold: float) -> list[int]:
+    """msckf_vio ``findRedundantCamStates``: two slots to remove, oldest first.
+
+    The key clone is the 4th-newest. The 3rd-newest (then the 2nd-newest) is removed when it is within
+    ``rotation_threshold`` (rad) and ``translation_threshold`` (m) of the key and the tracking rate is above
+    ``tracking_rate_threshold``; otherwise the oldest (then the next oldest) is removed. As in the C++
+    (unlike the uoip port), the recent-clone iterator only advances when a recent clone was removed.
+    """
+    order = clones.order
+    key = order[-4]
+    key_R = clones.R_w_c[key]
+    key_p = clones.p[key]
+    recent = len(order) - 3
+    first = 0
+    out: list[int] = []
+    for _ in range(2):
+        s = order[recent]
+        angle = rotation_angle(key_R.T @ clones.R_w_c[s])
+        dist = float(np.linalg.norm(clones.p[s] - key_p))
+        if angle < rotation_threshold and dist < translation_threshold and tracking_rate > tracking_rate_threshold:
+            out.append(s)
+            recent += 1
+        else:
+            out.append(order[first])
+            first += 1
+    out = sorted(set(out), key=order.index)
+    return out

@@ -1,0 +1,162 @@
+"""Measurement update: Jacobians against numerical ones, OC projection, the fast Schur-complement update and
+χ² gate against the literal S-MSCKF QR path, and the pruning policy."""
+
+import numpy as np
+import pytest
+
+from msckf.config import MsckfConfig
+from msckf.filter import MsckfFilter
+from msckf.rotation import so3_exp
+from msckf.state import CloneStore
+from msckf.update import (MeasurementSpec, ekf_update_information, find_redundant_clones, gating_chi2,
+                          measurement_blocks, qr_reference_update, schur_information)
+from tests.msckf_sim_world import iterate, make_world, rosario_extrinsics
+
+_, _T10 = rosario_extrinsics()
+G_W = np.array([0.0, 0.0, -9.81])
+
+
+def _single_feature(rng, n=3):
+    R_w_c = so3_exp(rng.normal(size=(n, 3)) * 0.1)[None]
+    p_c = (np.arange(n)[:, None] * np.array([0.2, 0.0, 0.3]) + rng.normal(size=(n, 3)) * 0.05)[None]
+    p_f = np.array([[0.5, -0.3, 6.0]])
+    obs = np.zeros((1, n, 4))
+    depth = np.full((1, n), 5.5)
+    return R_w_c, p_c, p_f, obs, depth
+
+
+@pytest.mark.parametrize("depth_row", [False, True])
+def test_measurement_jacobians_match_numerical_jacobians(depth_row):
+    rng = np.random.default_rng(0)
+    n = 3
+    R_w_c, p_c, p_f, obs, depth = _single_feature(rng, n)
+    spec = MeasurementSpec(_T10[:3, :3], _T10[:3, 3], G_W, 0.01, oc=False, depth_row=depth_row,
+                           depth_inv_sigma=0.02, depth_rel_sigma=0.0)
+    use = np.full((1, n), depth_row)
+    has = np.ones((1, n), dtype=bool)
+    pos = np.arange(n)[None]
+
+    def h(Rw, pc, pf):
+        b = measurement_blocks(spec, pf, Rw, pc, np.swapaxes(Rw, -1, -2), pc, obs, depth, use, has, pos, n)
+        return -b.r[0]                                  # obs are zeros: r = −h (whitened depth row)
+
+    b = measurement_blocks(spec, p_f, R_w_c, p_c, np.swapaxes(R_w_c, -1, -2), p_c, obs, depth, use, has, pos, n)
+    eps = 1e-7
+    for j in range(n):
+        for a in range(6):
+            d = np.zeros(3)
+            d[a % 3] = eps
+            Rp, Rm, pp, pm = R_w_c.copy(), R_w_c.copy(), p_c.copy(), p_c.copy()
+            if a < 3:
+                Rp[0, j] = R_w_c[0, j] @ so3_exp(d)
+                Rm[0, j] = R_w_c[0, j] @ so3_exp(-d)
+            else:
+                pp[0, j] += d
+                pm[0, j] -= d
+            num = (h(Rp, pp, p_f) - h(Rm, pm, p_f)) / (2 * eps)
+            assert np.allclose(num[j][b.rows[0, j]], b.Hx[0, j][b.rows[0, j], a], atol=1e-6)
+            others = [i for i in range(n) if i != j]
+            assert np.allclose(num[others], 0.0, atol=1e-9)  # a clone only affects its own rows
+    for a in range(3):
+        d = np.zeros(3)
+        d[a] = eps
+        num = (h(R_w_c, p_c, p_f + d) - h(R_w_c, p_c, p_f - d)) / (2 * eps)
+        assert np.allclose(num[b.rows[0]], b.Hf[0][..., a][b.rows[0]], atol=1e-6)
+    assert b.rows.shape[-1] == (5 if depth_row else 4)
+    if depth_row:
+        assert b.rows[0, :, 4].all()
+        assert (~b.rows[0, :, 2:4]).all()               # the depth row replaces the depth-implied cam1 rows
+
+
+def test_oc_projection_annihilates_the_unobservable_direction():
+    rng = np.random.default_rng(1)
+    R_w_c, p_c, p_f, obs, depth = _single_feature(rng)
+    R_null = np.swapaxes(R_w_c, -1, -2) @ so3_exp(rng.normal(size=3) * 0.01)   # first estimates differ a bit
+    p_null = p_c + rng.normal(size=p_c.shape) * 0.01
+    spec = MeasurementSpec(_T10[:3, :3], _T10[:3, 3], G_W, 0.01, oc=True)
+    b = measurement_blocks(spec, p_f, R_w_c, p_c, R_null, p_null, obs, depth, np.zeros((1, 3), bool),
+                           np.ones((1, 3), bool), np.arange(3)[None], 3)
+    for j in range(3):
+        u = np.concatenate([R_null[0, j] @ G_W, np.cross(p_f[0] - p_null[0, j], G_W)])
+        assert np.allclose(b.Hx[0, j] @ u, 0.0, atol=1e-12)
+        assert np.allclose(b.Hf[0, j], -b.Hx[0, j][:, 3:6])
+
+
+@pytest.fixture(scope="module", params=["stereo", "depth"])
+def running_filter(request):
+    """A filter after 40 frames of the simulated world (stereo matches or depth-map observations), with its
+    live features triangulated."""
+    w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=request.param == "depth",
+                   depth_rel_sigma=0.02)
+    cfg = MsckfConfig(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                      feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4)
+    flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+    flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81,
+                   covariance=np.diag(np.r_[[1e-4] * 3, [1e-6] * 3, [1e-2] * 3, [1e-4] * 3, [1e-4] * 3,
+                                            [1e-5] * 3, [1e-5] * 3]))
+    for _ in iterate(w, flt, stop_after=40):
+        pass
+    fs = flt.features
+    rows = fs.alive_rows()
+    order = np.asarray(flt.clones.order)
+    rows = rows[fs.has[rows][:, order].sum(axis=1) >= 3]
+    from msckf.filter import FrameStats
+    need = rows[~fs.initialized[rows]]
+    ok = flt._triangulate(need, FrameStats())
+    assert len(need) == 0 or ok.mean() > 0.9
+    rows = rows[fs.initialized[rows]]
+    return flt, rows, order
+
+
+@pytest.mark.parametrize("oc", [True, False])
+@pytest.mark.parametrize("depth_row", [False, True])
+def test_schur_update_equals_qr_null_space_update(running_filter, oc, depth_row):
+    flt, rows, order = running_filter
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise, oc=oc, depth_row=depth_row)
+    mask = flt.features.has[rows][:, order]
+    b = flt._batch(rows, mask, spec)
+    has_depth = bool(np.isfinite(flt.features.depth[rows]).any())
+    assert b.rows.shape[-1] == (5 if depth_row else 4)
+    assert not depth_row or b.rows[..., 4].any() == has_depth
+    sigma = flt.config.feature_noise
+    n_cl = len(order)
+    dx_ref, P_ref, gamma_ref = qr_reference_update(flt.P, b, sigma, n_cl)
+    Lam, eta, ok = schur_information(b, n_cl)
+    assert ok.all()
+    dx, P_new = ekf_update_information(flt.P, Lam, eta, sigma)
+    assert np.allclose(dx, dx_ref, rtol=1e-7, atol=1e-10 * np.abs(dx_ref).max())
+    assert np.allclose(P_new, P_ref, rtol=1e-6, atol=1e-9 * np.abs(P_ref).max())
+    gamma = gating_chi2(flt.P, b, sigma)
+    assert np.allclose(gamma, gamma_ref, rtol=1e-7)
+
+
+def test_filter_runs_identically_with_schur_and_qr_updates():
+    w = make_world(seed=4, duration=4.0, max_features=80)
+    poses = {}
+    for method in ("schur", "qr"):
+        cfg = MsckfConfig(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                          feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, update_method=method)
+        flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        poses[method] = np.array([np.r_[p.p_world, p.v_world] for _, p in iterate(w, flt)])
+    assert np.abs(poses["schur"] - poses["qr"]).max() < 1e-8
+
+
+def test_pruning_policy_follows_msckf_vio():
+    cl = CloneStore(8)
+    for i in range(6):                                  # 6 clones, 1 m apart: nothing is redundant
+        cl.add(i, float(i), np.eye(3), np.array([float(i), 0.0, 0.0]))
+    assert find_redundant_clones(cl, 0.2618, 0.4, 0.9, 0.5) == [cl.order[0], cl.order[1]]
+    cl2 = CloneStore(8)
+    for i, x in enumerate([0.0, 1.0, 2.0, 2.1, 2.2, 5.0]):   # 3rd/2nd-newest within 0.4 m of the key (4th-newest)
+        cl2.add(i, float(i), np.eye(3), np.array([x, 0.0, 0.0]))
+    assert find_redundant_clones(cl2, 0.2618, 0.4, 0.9, 0.5) == [cl2.order[3], cl2.order[4]]
+    # low tracking rate → the oldest go, even when the recent ones are close
+    assert find_redundant_clones(cl2, 0.2618, 0.4, 0.3, 0.5) == [cl2.order[0], cl2.order[1]]
+    cl3 = CloneStore(8)
+    for i, x in enumerate([0.0, 1.0, 2.0, 2.1, 5.0, 6.0]):   # 3rd-newest close, 2nd-newest far
+        cl3.add(i, float(i), np.eye(3), np.array([x, 0.0, 0.0]))
+    cl3.R_w_c[cl3.order[3]] = so3_exp(np.array([0.0, 0.0, 0.1]))      # 5.7° < 15°: still redundant
+    assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[3]]
+    cl3.R_w_c[cl3.order[3]] = so3_exp(np.array([0.0, 0.0, 0.3]))      # 17° > 15°: not redundant
+    assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[1]]
