@@ -1,0 +1,109 @@
+"""Inpainting stage: fill the holes of every cached depth frame of a sequence with one method, cached on disk.
+
+Inpainted depth is deterministic, so it is computed once per (sequence, depth parameters, method) and reused by
+all runs. It is stored with the depth stage's own cache format (whole millimetres, PNG-compressed chunks) in a
+sibling folder keyed by the method as well; the hole mask of a frame is the raw depth frame's ``~valid``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from inpaint import METHODS, inpaint
+from pipeline.depth import DepthFrame, DepthParams
+from pipeline.depth_cache import DepthCache, depth_stream
+from pipeline.errors import AgrivioError
+
+#: Bump when the stage changes its outputs (invalidates inpainted caches).
+INPAINT_STAGE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class InpaintParams:
+    """Which depth is inpainted and how. ``options``: keyword options of the method, as a sorted tuple of pairs."""
+
+    depth: DepthParams = field(default_factory=DepthParams)
+    method: str = "paper"
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def key(self) -> str:
+        blob = json.dumps({"depth": self.depth.key(), "method": self.method, "options": list(self.options),
+                           "version": INPAINT_STAGE_VERSION, "weights": _weights_fingerprint(self.method)},
+                          sort_keys=True, default=str)
+        return f"inpaint-{self.method}-" + hashlib.blake2b(blob.encode(), digest_size=8).hexdigest()
+
+
+def _weights_fingerprint(method: str) -> str:
+    """Hash of the shipped network weights (the paper's method): new weights invalidate its caches."""
+    if method != "paper":
+        return ""
+    weights = Path(__file__).resolve().parent.parent / "inpaint" / "weights"
+    digest = hashlib.blake2b(digest_size=8)
+    for path in sorted(weights.glob("*.pt")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
+    """The inpainted version of one raw depth frame (known pixels unchanged; guide = rectified left grey)."""
+    hole = ~frame.valid
+    if not hole.any():
+        filled = frame.depth_m.copy()
+    elif not frame.valid.any():
+        filled = frame.depth_m.copy()  # nothing to inpaint from: the frame stays all-hole
+    else:
+        filled = inpaint(np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32), hole, frame.left_rect_grey,
+                         method=params.method, **dict(params.options))
+    filled = np.asarray(filled, dtype=np.float32)
+    valid = np.isfinite(filled) & (filled > 0)
+    return DepthFrame(frame.stamp_ns, frame.index, np.where(valid, filled, np.nan).astype(np.float32), valid,
+                      frame.left_rect_grey)
+
+
+def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
+                     stats: dict[str, Any] | None = None) -> Iterator[DepthFrame]:
+    """Inpainted depth frames of ``sequence`` in order: from the cache, or computed from the raw depth and cached."""
+    if params.method not in METHODS:
+        raise AgrivioError(f"unknown inpainting method {params.method!r}; available: {', '.join(sorted(METHODS))}")
+    st = stats if stats is not None else {}
+    st.update(computed=0, cached=0, compute_s=0.0)
+    store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
+    st["directory"] = str(store.directory)
+    n_total = store.n_frames
+    if n_total is not None:
+        for frame in store.iter(0, n_total):
+            st["cached"] += 1
+            yield frame
+        return
+    raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root)
+    n = 0
+    with tqdm(desc=f"inpaint ({params.method})", unit="frame", disable=not progress, leave=False) as bar:
+        for frame in raw:
+            done = store.get(frame.index)
+            if done is None:
+                t0 = time.perf_counter()
+                done = inpaint_frame(frame, params)
+                st["compute_s"] += time.perf_counter() - t0
+                st["computed"] += 1
+                store.put(done)
+                done = store.get(frame.index) or done  # the cached (millimetre) version, as later reads see it
+            else:
+                st["cached"] += 1
+            n += 1
+            bar.update(1)
+            yield done
+    store.flush()
+    store.mark_complete(n)
+
+
+def params_summary(params: InpaintParams) -> dict[str, Any]:
+    return {"method": params.method, "options": dict(params.options), "depth": asdict(params.depth)}

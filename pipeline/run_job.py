@@ -1,0 +1,272 @@
+"""One run of one variant on one sequence with one seed: VIO (or odometry EKF) → TUM estimate → evaluation → record.
+
+A run folder holds:
+
+* ``record.json`` — the :class:`eval.records.RunRecord` (written last, atomically, by :mod:`pipeline.batch`);
+* ``estimate.tum`` — the estimated IMU/body trajectory (base_link for ``odometry``), TUM, for evo and the report;
+* ``frames.npz`` — the per-frame log for the replay: stamps, feature counts, time per frame and the features
+  themselves (raw left pixels, track length, depth source), ragged arrays flattened with an index.
+
+The function :func:`run_job` is what the batch runner calls in a worker process; it raises on failure (the batch
+runner turns the exception into a failed record) except for filter divergence, which it records itself with the
+reason and the partial estimate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eval.evaluate import EvalOptions, evaluate
+from eval.records import RunRecord, config_hash
+from eval.trajectory import Trajectory, format_tum, read_tum
+from msckf.config import load_config
+from msckf.errors import FilterDivergedError
+from msckf.init import NonStaticStartError
+from msckf.vio import Msckf
+from pipeline.atomic import atomic_path, write_text_atomic
+from pipeline.bag_reader import RosarioSequence
+from pipeline.batch import Job
+from pipeline.depth import DepthParams
+from pipeline.depth_cache import DepthCache
+from pipeline.errors import AgrivioError
+from pipeline.inpaint_stage import InpaintParams
+from pipeline.odometry_ekf import run_odometry_ekf
+from pipeline.version import code_version
+
+VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
+ESTIMATE_NAME = "estimate.tum"
+FRAMES_NAME = "frames.npz"
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What a run needs besides its variant and seed (all paths absolute; JSON-able through ``Job.options``).
+
+    Attributes:
+        bag: the sequence's bag (or the first byte-split part).
+        gt: ground-truth TUM file (Rosario: GPS antenna positions), or None (then no metrics).
+        camchain: Kalibr camchain YAML (None: the shipped Rosario one).
+        cache_root: the cache root holding the depth and inpainted-depth caches.
+        inpaint_method: method of the ``depth-inpainted`` variant.
+        msckf_config: a YAML file overriding MSCKF defaults, or None.
+        lever_arm_imu: (3,) GPS antenna position in the IMU frame, metres (None: compare IMU positions directly).
+        lever_arm_base: (3,) antenna in base_link (for the ``odometry`` variant), metres, or None.
+        R_base_imu: (3, 3) rotation IMU → base_link as nested lists, or None (odometry EKF finds "up" itself).
+        max_frames: stop after this many stereo frames (None: whole sequence).
+    """
+
+    bag: str
+    gt: str | None
+    camchain: str | None
+    cache_root: str
+    inpaint_method: str = "paper"
+    msckf_config: str | None = None
+    lever_arm_imu: tuple[float, float, float] | None = None
+    lever_arm_base: tuple[float, float, float] | None = None
+    R_base_imu: tuple[tuple[float, ...], ...] | None = None
+    max_frames: int | None = None
+
+    def to_options(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_options(cls, options: dict[str, Any]) -> "RunInputs":
+        known = {k: options[k] for k in cls.__dataclass_fields__ if k in options}
+        for k in ("lever_arm_imu", "lever_arm_base"):
+            if known.get(k) is not None:
+                known[k] = tuple(float(x) for x in known[k])
+        if known.get("R_base_imu") is not None:
+            known["R_base_imu"] = tuple(tuple(float(x) for x in row) for row in known["R_base_imu"])
+        return cls(**known)
+
+
+class _FrameLog:
+    """Per-frame log of a VIO run (for the replay and timing figures)."""
+
+    def __init__(self) -> None:
+        self.stamps: list[float] = []
+        self.n_features: list[int] = []
+        self.n_depth: list[int] = []
+        self.frame_ms: list[float] = []
+        self.uv: list[np.ndarray] = []
+        self.track_len: list[np.ndarray] = []
+        self.source: list[np.ndarray] = []
+
+    def add(self, stamp_s: float, debug: Any, elapsed_s: float) -> None:
+        self.stamps.append(stamp_s)
+        self.frame_ms.append(1e3 * elapsed_s)
+        if debug is None:
+            uv, tl, src = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+        else:
+            uv, tl, src = debug.cam0_px, debug.track_length, debug.source
+        self.uv.append(np.asarray(uv, dtype=np.float32).reshape(-1, 2))
+        self.track_len.append(np.asarray(tl, dtype=np.int32))
+        self.source.append(np.asarray(src, dtype=np.uint8))
+        self.n_features.append(len(self.uv[-1]))
+        self.n_depth.append(int(np.count_nonzero(self.source[-1] > 0)))
+
+    def save(self, path: Path) -> None:
+        counts = np.array([len(u) for u in self.uv], dtype=np.int64)
+        with atomic_path(path, suffix=".npz") as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(
+                    fh, stamps_s=np.array(self.stamps), n_features=np.array(self.n_features),
+                    n_depth=np.array(self.n_depth), frame_ms=np.array(self.frame_ms),
+                    feature_offsets=np.concatenate([[0], np.cumsum(counts)]),
+                    feature_uv=np.concatenate(self.uv) if self.uv else np.zeros((0, 2), np.float32),
+                    feature_track_length=np.concatenate(self.track_len) if self.track_len else np.zeros(0, np.int32),
+                    feature_source=np.concatenate(self.source) if self.source else np.zeros(0, np.uint8))
+
+    def timing_summary(self) -> dict[str, float]:
+        ms = np.asarray(self.frame_ms)
+        if ms.size == 0:
+            return {}
+        return {"frame_ms_median": float(np.median(ms)), "frame_ms_p95": float(np.percentile(ms, 95)),
+                "fps": float(1e3 / np.mean(ms))}
+
+
+def _poses_to_trajectory(stamps: list[float], p: list[np.ndarray], q: list[np.ndarray]) -> Trajectory:
+    return Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(p, dtype=np.float64).reshape(-1, 3),
+                      np.asarray(q, dtype=np.float64).reshape(-1, 4), has_orientation=True)
+
+
+def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) -> tuple[Trajectory, str | None]:
+    """Feed IMU and frames to the MSCKF in time order; return the trajectory and a divergence reason (or None)."""
+    config = load_config(inputs.msckf_config) if inputs.msckf_config else None
+    rig = seq.calibration
+    variant = "stereo" if job.variant == "stereo" else "depth"
+    vio = Msckf(config, rig, variant=variant, seed=job.seed)
+    imu = seq.imu_array()
+    depth_store = None
+    if job.variant == "depth-raw":
+        depth_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams())
+    elif job.variant == "depth-inpainted":
+        depth_store = DepthCache(inputs.cache_root, seq.identity(), InpaintParams(method=inputs.inpaint_method))
+    if depth_store is not None and depth_store.n_frames is None:
+        raise AgrivioError(f"{seq.path}: the {job.variant} depth cache is missing or incomplete "
+                           f"({depth_store.directory}); run the depth/inpainting stage first")
+    non_static: str | None = None
+    stamps: list[float] = []
+    ps: list[np.ndarray] = []
+    qs: list[np.ndarray] = []
+    k_imu = 0
+    try:
+        for frame in seq.stereo_frames(stop_index=inputs.max_frames):
+            t_img = frame.stamp_ns * 1e-9
+            while k_imu < len(imu) and imu[k_imu, 0] <= t_img:
+                try:
+                    vio.add_imu(imu[k_imu, 0], imu[k_imu, 1:4], imu[k_imu, 4:7])
+                except NonStaticStartError as exc:  # S-MSCKF needs a still start: wait for one, say so if none
+                    non_static = str(exc)
+                k_imu += 1
+            left = _grey(frame.left_bgr)
+            t0 = time.perf_counter()
+            if variant == "stereo":
+                pose = vio.add_frame(t_img, left, right_grey=_grey(frame.right_bgr))
+            else:
+                d = depth_store.get(frame.index)
+                if d is None:
+                    raise AgrivioError(f"{seq.path}: depth cache has no frame {frame.index}")
+                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid)
+            log.add(t_img, vio.last_debug, time.perf_counter() - t0)
+            if pose is not None:
+                stamps.append(pose.stamp_s)
+                ps.append(pose.p_world)
+                qs.append(pose.q_world_imu_xyzw)
+    except FilterDivergedError as exc:
+        return _poses_to_trajectory(stamps, ps, qs), exc.reason + (f" at t={exc.stamp_s:.2f} s"
+                                                                   if exc.stamp_s is not None else "")
+    if not vio.initialized:
+        return _poses_to_trajectory(stamps, ps, qs), ("the filter never initialised" +
+                                                      (f": {non_static}" if non_static else ""))
+    return _poses_to_trajectory(stamps, ps, qs), None
+
+
+def _grey(bgr: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if bgr.ndim == 3 else bgr
+
+
+def _run_odometry(inputs: RunInputs, seq: RosarioSequence) -> Trajectory:
+    R = np.asarray(inputs.R_base_imu) if inputs.R_base_imu is not None else None
+    odom = seq.odom_array()
+    if inputs.max_frames is not None:
+        t_end = seq.start_ns * 1e-9 + inputs.max_frames / 15.0
+        odom = odom[odom[:, 0] <= t_end]
+    return run_odometry_ekf(odom, seq.imu_array(), R_base_imu=R).trajectory
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Run one job (see the module docstring) and return its record as a dict."""
+    if job.variant not in VARIANTS:
+        raise AgrivioError(f"unknown variant {job.variant!r}; choose from {', '.join(VARIANTS)}")
+    inputs = RunInputs.from_options(job.options)
+    out = Path(job.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    seq = RosarioSequence(inputs.bag, camchain=inputs.camchain)
+    log = _FrameLog()
+    failure = None
+    if job.variant == "odometry":
+        est = _run_odometry(inputs, seq)
+        lever = inputs.lever_arm_base
+    else:
+        est, failure = _run_vio(job, inputs, seq, log)
+        lever = inputs.lever_arm_imu
+        log.save(out / FRAMES_NAME)
+    t_run = time.perf_counter() - t_start
+    if len(est.stamps_s):
+        frame_name = "base_link" if job.variant == "odometry" else "IMU"
+        write_text_atomic(out / ESTIMATE_NAME, format_tum(est, header=f"agrivio {job.label} ({frame_name} frame)"))
+    metrics: dict[str, Any] = {}
+    eval_options = EvalOptions(align="se3", max_diff_s=0.02, lever_arm_m=lever)
+    if failure is None and inputs.gt is not None:
+        if len(est.stamps_s) < 3:
+            failure = f"the filter produced {len(est.stamps_s)} poses (never initialised?)"
+        else:
+            metrics = evaluate(read_tum(inputs.gt), est, eval_options).metrics()
+    settings = {"variant": job.variant, "inputs": inputs.to_options(), "eval": eval_options.to_dict()}
+    if job.variant != "odometry":
+        settings["msckf"] = load_config(inputs.msckf_config).to_dict()
+    record = RunRecord(
+        sequence=job.sequence, variant=job.variant, seed=job.seed,
+        status="failed" if failure else "ok", failure_reason=failure,
+        inpaint_method=inputs.inpaint_method if job.variant == "depth-inpainted" else None,
+        config_hash=config_hash(settings), code_version=code_version(), metrics=metrics,
+        timings={"total_s": time.perf_counter() - t_start, "run_s": t_run, **log.timing_summary()},
+        estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
+        gt_path=str(Path(inputs.gt).resolve()) if inputs.gt else None,
+        extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
+               "frames": int(len(log.stamps)), "job": {"source": job.source, **{k: v for k, v in job.options.items()
+                                                                                if k != "R_base_imu"}}},
+    )
+    return record.to_dict()
+
+
+def lever_arms_from_tf(seq: RosarioSequence) -> dict[str, Any]:
+    """Antenna lever arms from the bag's ``tf_static`` (base_link→imu, base_link→gps), or {} if absent.
+
+    Returns keys ``lever_arm_imu`` (antenna in the IMU frame), ``lever_arm_base`` (antenna in base_link) and
+    ``R_base_imu`` (IMU → base_link rotation), JSON-able.
+    """
+    tfs = {(p.lstrip("/"), c.lstrip("/")): T for (p, c), T in seq.static_transforms().items()}
+    T_base_imu = tfs.get(("base_link", "imu"))
+    T_base_gps = tfs.get(("base_link", "gps"))
+    out: dict[str, Any] = {}
+    if T_base_gps is not None:
+        out["lever_arm_base"] = tuple(float(x) for x in T_base_gps[:3, 3])
+    if T_base_imu is not None:
+        out["R_base_imu"] = tuple(tuple(float(x) for x in row) for row in T_base_imu[:3, :3])
+        if T_base_gps is not None:
+            p_imu = np.linalg.inv(T_base_imu) @ np.append(T_base_gps[:3, 3], 1.0)
+            out["lever_arm_imu"] = tuple(float(x) for x in p_imu[:3])
+    return out
+
+
+__all__ = ["RunInputs", "VARIANTS", "lever_arms_from_tf", "run_job"]
