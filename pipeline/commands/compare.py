@@ -79,7 +79,8 @@ def _representative(items: Sequence[tuple[Path, RunRecord]]) -> tuple[Path, RunR
     return ok[(len(ok) - 1) // 2]
 
 
-def _options_for(rec: RunRecord) -> EvalOptions:
+def options_for(rec: RunRecord) -> EvalOptions:
+    """The evaluation options a run record was evaluated with (so plots and replays match its metrics)."""
     opts = rec.extra.get("eval_options")
     kwargs = {}
     if isinstance(opts, dict):
@@ -105,7 +106,7 @@ def load_evaluations(records: Sequence[tuple[Path, RunRecord]]) -> tuple[dict[tu
         est_path = _resolve(path.parent, rec.estimate_path or "")
         gt_path = _resolve(path.parent, rec.gt_path or "")
         try:
-            evaluations[key] = evaluate(read_tum(gt_path), read_tum(est_path), _options_for(rec))
+            evaluations[key] = evaluate(read_tum(gt_path), read_tum(est_path), options_for(rec))
         except EvalInputError as exc:
             notes.append(f"{key[0]}/{key[1]} seed {rec.seed}: trajectory plot skipped: {exc}")
     return evaluations, notes

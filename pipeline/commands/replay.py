@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eval.evaluate import EvalOptions, evaluate
+from eval.evaluate import evaluate
+from eval.records import RunRecord
 from eval.trajectory import read_tum
 from pipeline.bag_reader import RosarioSequence
+from pipeline.commands.compare import options_for
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
 from pipeline.errors import AgrivioError
@@ -56,8 +58,7 @@ def _load_run(run_dir: Path) -> tuple[dict, ReplayRun, np.ndarray | None]:
     gt_positions = None
     if gt_path and Path(gt_path).is_file() and len(est.stamps_s) >= 3:
         ref = read_tum(gt_path)
-        lever = opts.get("lever_arm_base" if record.get("variant") == "odometry" else "lever_arm_imu")
-        ev = evaluate(ref, est, EvalOptions(align="se3", lever_arm_m=lever))
+        ev = evaluate(ref, est, options_for(RunRecord.from_dict(record, source=str(rec_path))))
         # whole estimate in the GT frame (the alignment is rigid); errors at associated poses
         aligned = ev.alignment.apply(est)
         positions, quats = aligned.positions, aligned.quats_xyzw
