@@ -1,0 +1,128 @@
+"""Procedural field-like depth maps with exact ground truth (unit tests; training fallback only).
+
+A pinhole camera (Rosario-like rectified intrinsics scaled to the requested size) at ``cam_height`` metres above
+flat or gently undulating ground, pitched down; crop rows of leafy plants (clusters of spheres) along the
+viewing direction; a tree line (vertical surface) far away and sky above it. Depth is the z-buffer of these
+surfaces (optical frame: x right, y down, z forward), metres, float32. Sky pixels get ``sky_depth`` and are
+flagged invalid in ``valid`` (no finite ground truth). A grey guide image in [0, 1] is rendered from the same
+surfaces (textured ground, brighter leaves with shading, bright sky).
+
+This generator is NOT the project's simulator (``pipeline/sim``); it exists so that the inpaint library can be
+tested without the pipeline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SyntheticFrame:
+    """``depth``: H×W float32 metres; ``guide``: H×W float32 grey in [0, 1]; ``valid``: H×W bool (False = sky)."""
+
+    depth: np.ndarray
+    guide: np.ndarray
+    valid: np.ndarray
+
+
+def field_depth(height: int = 376, width: int = 672, seed: int = 0, cam_height: float = 1.0,
+                pitch_deg: float | None = None, n_rows: int = 5, row_spacing: float = 0.7,
+                sky_depth: float = 60.0) -> SyntheticFrame:
+    """Render one procedural field frame (see module docstring); deterministic in ``seed``."""
+    rng = np.random.default_rng(seed)
+    s = width / 672.0
+    fx = fy = 351.0 * s
+    cx, cy = width / 2.0 + rng.uniform(-10, 10) * s, height / 2.0 + rng.uniform(-10, 10) * s
+    pitch = np.deg2rad(rng.uniform(8.0, 18.0) if pitch_deg is None else pitch_deg)
+    yaw = np.deg2rad(rng.uniform(-8.0, 8.0))
+    # Camera-from-world rotation: world x right, y down (gravity), z forward; camera pitched down by `pitch`.
+    cp, sp, cyw, syw = np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    r_pitch = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    r_yaw = np.array([[cyw, 0, syw], [0, 1, 0], [-syw, 0, cyw]])
+    r_cw = r_pitch @ r_yaw  # maps world directions to camera
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays_c = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], axis=-1)  # camera rays (z = 1)
+    rays_w = rays_c @ r_cw  # world directions (rows: r_wc · ray_c)
+    depth = np.full((height, width), np.inf)
+    label = np.zeros((height, width), np.int8)  # 0 sky, 1 ground, 2 plant, 3 tree line
+    shade = np.zeros((height, width))
+
+    # Ground: world y = cam_height + small undulation; solve along the ray (two fixed-point steps).
+    amp, wl = rng.uniform(0.0, 0.08), rng.uniform(3.0, 8.0)
+    dy = rays_w[..., 1]
+    t = np.where(dy > 1e-6, cam_height / np.maximum(dy, 1e-6), np.inf)
+    for _ in range(2):
+        xz = np.where(np.isfinite(t), rays_w[..., 2] * np.where(np.isfinite(t), t, 0.0), 0.0)
+        hgt = cam_height + amp * np.sin(xz / wl * 2 * np.pi)
+        t = np.where(dy > 1e-6, hgt / np.maximum(dy, 1e-6), np.inf)
+    zg = t * 1.0  # camera z of the point = t (rays_c has z = 1)
+    ground = np.isfinite(zg) & (zg > 0) & (zg < sky_depth)
+    depth[ground] = zg[ground]
+    label[ground] = 1
+
+    # Tree line: a vertical plane at world z = far, up to `tree_h` above the ground.
+    far, tree_h = rng.uniform(18.0, 35.0), rng.uniform(3.0, 8.0)
+    dz = rays_w[..., 2]
+    tt = np.where(dz > 1e-6, far / np.maximum(dz, 1e-6), np.inf)
+    yw = rays_w[..., 1] * tt
+    tree_top = cam_height - tree_h + 1.5 * np.sin(rays_w[..., 0] * tt / 4.0 + rng.uniform(0, 6))
+    tree = (yw > tree_top) & (tt < depth)
+    depth[tree] = tt[tree]
+    label[tree] = 3
+
+    # Plants: clusters of spheres along crop rows (world x = row offsets), sorted far to near.
+    offsets = (np.arange(n_rows) - (n_rows - 1) / 2.0) * row_spacing + rng.uniform(-0.2, 0.2)
+    spheres = []
+    for x0 in offsets:
+        z = rng.uniform(1.0, 2.5)
+        while z < 14.0:
+            rad = rng.uniform(0.07, 0.22)
+            n_leaf = rng.integers(2, 5)
+            for _ in range(n_leaf):
+                c = np.array([x0 + rng.normal(0, 0.06), cam_height - rad * rng.uniform(0.6, 1.6),
+                              z + rng.normal(0, 0.05)])
+                spheres.append((c, rad * rng.uniform(0.5, 1.0)))
+            z += rng.uniform(0.25, 0.6)
+    for cw, rad in spheres:
+        cc = r_cw @ cw  # centre in camera frame
+        if cc[2] <= rad + 0.05:
+            continue
+        uc, vc = fx * cc[0] / cc[2] + cx, fy * cc[1] / cc[2] + cy
+        pr = fx * rad / cc[2] * 1.2 + 2
+        u0, u1 = int(max(0, uc - pr)), int(min(width, uc + pr + 1))
+        v0, v1 = int(max(0, vc - pr)), int(min(height, vc + pr + 1))
+        if u0 >= u1 or v0 >= v1:
+            continue
+        rc = rays_c[v0:v1, u0:u1]
+        nrm = np.linalg.norm(rc, axis=-1)
+        dirs = rc / nrm[..., None]
+        b = dirs @ cc
+        disc = b * b - cc @ cc + rad * rad
+        hit = disc > 0
+        tt = b - np.sqrt(np.maximum(disc, 0))
+        zz = tt / nrm  # camera z
+        win = hit & (zz < depth[v0:v1, u0:u1]) & (zz > 0)
+        sub_d = depth[v0:v1, u0:u1]
+        sub_d[win] = zz[win]
+        label[v0:v1, u0:u1][win] = 2
+        pts = dirs * tt[..., None] - cc
+        shade[v0:v1, u0:u1][win] = (0.5 + 0.5 * (pts[..., 1] / rad * -0.6 + pts[..., 0] / rad * 0.3))[win]
+
+    valid = np.isfinite(depth)
+    depth = np.where(valid, depth, sky_depth).astype(np.float32)
+    guide = _guide(label, shade, depth, rng)
+    return SyntheticFrame(depth=depth, guide=guide, valid=valid)
+
+
+def _guide(label: np.ndarray, shade: np.ndarray, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    h, w = label.shape
+    noise = cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), 1.2)
+    g = np.zeros((h, w), np.float32)
+    g[label == 0] = 0.9
+    g[label == 1] = 0.35 + 0.08 * noise[label == 1]
+    g[label == 2] = (0.25 + 0.35 * np.clip(shade, 0, 1) + 0.05 * noise)[label == 2]
+    g[label == 3] = 0.2 + 0.1 * noise[label == 3]
+    return np.clip(g, 0, 1).astype(np.float32)

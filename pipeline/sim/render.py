@@ -1,0 +1,685 @@
+"""CPU renderer of the field through the Rosario stereo rig (numpy/OpenCV, headless).
+
+Per camera and frame:
+
+1. An *ideal* pinhole image is rendered in the camera's **rectified** frame (``p_rect = R_rect · p_raw_cam``) with
+   the rectified intrinsics (``P_left``/``P_right``) and an integer margin, so that it covers every ray of the raw
+   distorted image. Rays have ``z = 1`` in that frame, so a ray parameter *is* the rectified depth ``Z``.
+2. Surfaces: terrain (heightfield, Newton ray intersection), the far canopy plane, two tree lines
+   (ray/cylinder), and planar polygons (leaflets, weeds, canopy prisms) drawn far-to-near into an id buffer
+   with ``cv2.fillPoly``; each id pixel then gets its exact depth from the ray/plane intersection and wins over
+   the terrain only where it is nearer (a per-pixel z-test).
+3. Shading in linear radiance: sun (Lambert, leaf translucency, glossy highlights) with leaf shadows from a
+   shadow map, sky light with ambient occlusion, bump-mapped soil, mip-mapped textures, sky with clouds and the
+   sun, aerial haze, veiling glare and lens-flare ghosts when the sun is near the view.
+4. Camera: exposure, optics blur (on linear radiance), warp to the RAW distorted image with ``cv2.remap`` (maps
+   from the calibration's exact undistortion, computed once), vignetting, per-camera gain, gamma, shot and read
+   noise, 8-bit BGR.
+
+Depth comes from the same z-buffer: ``Z`` in the rectified camera frame, metres (``inf`` for the sky). A 3-D
+point, its pixel and its depth therefore agree exactly.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from msckf.camera import PinholeRadtan, StereoRig
+from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RenderConfig
+from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
+from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, sample_rows, smooth_noise_1d
+from pipeline.sim.terrain import Terrain
+from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
+from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
+                                Field, PolySet)
+
+LABEL_SKY, LABEL_SOIL, LABEL_LEAF, LABEL_CANOPY, LABEL_TREES = 0, 1, 2, 3, 4
+LABEL_NAMES = {LABEL_SKY: "sky", LABEL_SOIL: "soil", LABEL_LEAF: "leaf", LABEL_CANOPY: "canopy",
+               LABEL_TREES: "trees"}
+T_MAX_M = 4000.0
+NEAR_M = 0.05
+_F32 = np.float32
+
+
+@dataclass
+class RayBundle:
+    """A fixed set of camera rays laid out as an image.
+
+    Attributes:
+        rays: (H, W, 3) float32 directions in the rectified camera frame, scaled to z = 1 (so a ray parameter is
+            the rectified depth Z).
+        ray_norm: (H, W) float32 length of each ray (metres of path per metre of depth).
+        raster_x, raster_y: (H, W) int32 nearest pixel of the camera's polygon raster.
+        pixel_angle: angular size of a pixel, rad.
+    """
+
+    rays: np.ndarray
+    ray_norm: np.ndarray
+    raster_x: np.ndarray
+    raster_y: np.ndarray
+    pixel_angle: float
+
+
+@dataclass
+class CameraView:
+    """Fixed geometry of one camera.
+
+    Attributes:
+        name: ``"left"`` or ``"right"``.
+        raw: the raw camera model.
+        R_rect: (3, 3) rectification rotation, ``p_rect = R_rect · p_raw_cam``.
+        fx, fy, cx, cy: intrinsics of the polygon raster (rectified focal length, principal point shifted by the
+            margin), px.
+        width, height: raster size, px (covers every raw ray plus a margin).
+        margin: (mx, my) integer offset of the rectified image inside the raster.
+        raw_bundle: one ray per raw (distorted) image pixel: the image is shaded from these.
+        rect_bundle: one ray per rectified image pixel centre: the ground-truth depth is traced from these.
+        vignette: (H_raw, W_raw) float32 brightness factor.
+    """
+
+    name: str
+    raw: PinholeRadtan
+    R_rect: np.ndarray
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    margin: tuple[int, int]
+    raw_bundle: RayBundle
+    rect_bundle: RayBundle
+    vignette: np.ndarray
+
+
+def make_view(name: str, cam: PinholeRadtan, R_rect: np.ndarray, P_rect: np.ndarray, margin_px: int,
+              vignetting: float) -> CameraView:
+    """Ray bundles, raster geometry and vignetting of one camera (computed once)."""
+    w, h = cam.width, cam.height
+    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    xy = cam.undistort_points(np.stack([uu.ravel(), vv.ravel()], 1))
+    rays = np.concatenate([xy, np.ones((len(xy), 1))], 1) @ np.asarray(R_rect).T
+    rays = rays / rays[:, 2:3]
+    fx, fy = float(P_rect[0, 0]), float(P_rect[1, 1])
+    cx, cy = float(P_rect[0, 2]), float(P_rect[1, 2])
+    u_i = fx * rays[:, 0] + cx
+    v_i = fy * rays[:, 1] + cy
+    mx = int(np.ceil(-(min(u_i.min(), 0.0) - margin_px)))
+    my = int(np.ceil(-(min(v_i.min(), 0.0) - margin_px)))
+    width = int(np.ceil(max(u_i.max(), w - 1.0) + margin_px)) + mx + 1
+    height = int(np.ceil(max(v_i.max(), h - 1.0) + margin_px)) + my + 1
+
+    def bundle(r: np.ndarray, ux: np.ndarray, vy: np.ndarray) -> RayBundle:
+        r = r.reshape(h, w, 3).astype(np.float32)
+        return RayBundle(r, np.linalg.norm(r, axis=-1).astype(np.float32),
+                         np.clip(np.rint(ux), 0, width - 1).astype(np.int32).reshape(h, w),
+                         np.clip(np.rint(vy), 0, height - 1).astype(np.int32).reshape(h, w), 1.0 / fx)
+
+    raw_bundle = bundle(rays, u_i + mx, v_i + my)
+    rect_rays = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones_like(uu)], -1).reshape(-1, 3)
+    rect_bundle = bundle(rect_rays, uu.ravel() + mx, vv.ravel() + my)
+    r2 = ((uu - cam.cx) / cam.fx) ** 2 + ((vv - cam.cy) / cam.fy) ** 2
+    fall = 1.0 / (1.0 + r2) ** 2
+    vig = 1.0 - vignetting * (1.0 - fall) / max(1.0 - fall.min(), 1e-6)
+    return CameraView(name, cam, np.asarray(R_rect, np.float64), fx, fy, cx + mx, cy + my, width, height, (mx, my),
+                      raw_bundle, rect_bundle, vig.astype(np.float32))
+
+
+@dataclass
+class Trace:
+    """Surfaces hit by a ray bundle.
+
+    Attributes:
+        dirs: (H, W, 3) float32 field-frame ray directions (rectified z = 1).
+        t: (H, W) float32 ray parameter = rectified depth Z, metres (``inf``: sky).
+        label: (H, W) uint8 ``LABEL_*``.
+        hgx, hgy: (H, W) float32 terrain slopes at the terrain hit.
+        canopy: (H, W) bool, far canopy plane visible.
+        poly_px, poly_k: flat pixel indices where a polygon is visible, and its index in the polygon set.
+        trees: per tree line ``(flat pixel indices, arc length along the line, hit height, line index)``.
+    """
+
+    dirs: np.ndarray
+    t: np.ndarray
+    label: np.ndarray
+    hgx: np.ndarray
+    hgy: np.ndarray
+    canopy: np.ndarray
+    poly_px: np.ndarray
+    poly_k: np.ndarray
+    trees: list
+
+
+@dataclass
+class StereoRender:
+    """One rendered stereo frame.
+
+    Attributes:
+        left_bgr, right_bgr: (376, 672, 3) uint8 raw (distorted) BGR images.
+        depth: (376, 672) float32 depth Z in the rectified left camera frame, metres (``inf``: sky).
+        label: (376, 672) uint8 ``LABEL_*`` of the rectified left pixels.
+        glare: (376, 672) float32 sensor level of sun glare (veil + flare) at the rectified left pixels (0..).
+        right_depth, right_label: the same for the rectified right camera (only when requested).
+        mean_level: mean sensor level of the left image before noise, 0..1 (auto-exposure input).
+    """
+
+    left_bgr: np.ndarray
+    right_bgr: np.ndarray
+    depth: np.ndarray
+    label: np.ndarray
+    glare: np.ndarray
+    right_depth: np.ndarray | None
+    right_label: np.ndarray | None
+    mean_level: float
+
+
+@lru_cache(maxsize=4)
+def _cached_soil(field_cfg: FieldConfig, seed: int) -> SoilTextures:
+    return make_soil(field_cfg, seed)
+
+
+@lru_cache(maxsize=4)
+def _cached_foliage(seed: int) -> MipTexture:
+    return make_foliage(seed)
+
+
+@lru_cache(maxsize=4)
+def _cached_trees(seed: int) -> MipTexture:
+    return make_trees(seed)
+
+
+class FieldRenderer:
+    """Renders the field for a stereo rig.
+
+    Args:
+        rig: the calibration (raw intrinsics/distortion, rectification) the images must obey.
+        field_cfg, lighting, camera, render: configuration sections.
+        seed: world seed (geometry and textures).
+        threads: 2 renders the right camera in a second thread (numpy and OpenCV release the GIL); the result
+            does not depend on it.
+    """
+
+    def __init__(self, rig: StereoRig, field_cfg: FieldConfig, lighting: LightingConfig, camera: CameraConfig,
+                 render: RenderConfig, seed: int, threads: int = 2) -> None:
+        self.rig = rig
+        self.cfg_field = field_cfg
+        self.cfg_light = lighting
+        self.cfg_cam = camera
+        self.cfg_render = render
+        self.seed = int(seed)
+        centre = ((field_cfg.n_rows - 1) * field_cfg.row_spacing_m / 2, field_cfg.row_length_m / 2)
+        self.terrain = Terrain(field_cfg, seed, centre)
+        self.field = Field(field_cfg, seed, self.terrain)
+        self.sky = Sky(lighting, field_cfg.azimuth_deg, seed)
+        self.field.sun_dir = self.sky.sun_dir
+        self.soil: SoilTextures = _cached_soil(field_cfg, int(seed))
+        self.foliage: MipTexture = _cached_foliage(int(seed))
+        self.trees_tex: MipTexture = _cached_trees(int(seed))
+        #: extra polygons drawn in every frame (e.g. a calibration marker in tests)
+        self.extra_polys: PolySet | None = None
+        rng = np.random.default_rng([seed, 401])
+        self.leaf_noise = MipTexture.from_image((1.0 + 0.09 * fbm(rng, 128, ((0.7, 0.6), (2.5, 0.8)))).astype(
+            np.float32), 0.0015)
+        self.left = make_view("left", rig.left, rig.R_left, rig.P_left, render.margin_px, camera.vignetting)
+        self.right = make_view("right", rig.right, rig.R_right, rig.P_right, render.margin_px, camera.vignetting)
+        n = 8192
+        self.tree_profiles = []
+        for base, amp, gap in ((11.0, 5.0, -0.9), (9.0, 4.0, -1.6)):
+            lo = smooth_noise_1d(rng, n, 40.0)
+            hgt = base + amp * lo + 1.6 * smooth_noise_1d(rng, n, 6.0) + 0.6 * smooth_noise_1d(rng, n, 1.2)
+            hgt[lo < gap] = 0.0
+            self.tree_profiles.append(np.maximum(hgt, 0.0).astype(np.float32))
+        self.centre = np.array(centre)
+        self.tree_radii = (render.treeline_radius_m, render.treeline_radius_m * 3.2)
+        self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(1) if threads > 1 else None
+
+    # ---- per-frame helpers -----------------------------------------------------------------------------------------
+    def select_polys(self, cam_xy: np.ndarray, fwd_xy: np.ndarray) -> PolySet:
+        """Leaves and canopy prisms around a camera position (one set for both cameras of a frame)."""
+        n = float(np.hypot(*fwd_xy))
+        fwd = np.asarray(fwd_xy, np.float64) / n if n > 1e-6 else np.array([0.0, 1.0])
+        leaves, prisms = self.field.select(np.asarray(cam_xy, np.float64), fwd, self.cfg_render.leaf_range_m,
+                                           np.radians(64))
+        extra = [self.extra_polys] if self.extra_polys is not None else []
+        return PolySet.concat([leaves, prisms, *extra])
+
+    def shadow_atlas(self, cam_xy: np.ndarray, fwd_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Leaf shadow-height atlas around the camera: (map, (x0, y0) of its corner), or None away from rows."""
+        rng_m = self.cfg_render.shadow_range_m
+        x0, x1, y0, y1 = self.field.row_extent
+        disp = np.abs(self.sky.sun_dir[:2]) / max(self.sky.sun_dir[2], 0.05) * (1.7 * self.cfg_field.plant_height_m)
+        lo = np.maximum(cam_xy - rng_m, np.array([x0, y0]) - disp - 0.4)
+        hi = np.minimum(cam_xy + rng_m, np.array([x1, y1]) + disp + 0.4)
+        if np.any(hi <= lo):
+            return None
+        t_lo = np.floor(lo / SHADOW_TILE_M).astype(int)
+        t_hi = np.floor(hi / SHADOW_TILE_M).astype(int)
+        n = int(round(SHADOW_TILE_M / SHADOW_TEXEL_M))
+        atlas = np.full(((t_hi[1] - t_lo[1] + 1) * n, (t_hi[0] - t_lo[0] + 1) * n), SHADOW_NONE, np.float32)
+        for tx in range(t_lo[0], t_hi[0] + 1):
+            for ty in range(t_lo[1], t_hi[1] + 1):
+                c = (np.array([tx, ty]) + 0.5) * SHADOW_TILE_M - cam_xy
+                dist = float(np.hypot(*c))
+                if dist > rng_m + 1.5 * SHADOW_TILE_M:
+                    continue
+                if dist > 2 * SHADOW_TILE_M and float(np.dot(c, fwd_xy)) < -0.3 * dist:
+                    continue  # well behind the camera
+                ix, iy = tx - t_lo[0], ty - t_lo[1]
+                atlas[iy * n:(iy + 1) * n, ix * n:(ix + 1) * n] = self.field.shadow_tile(tx, ty)
+        return atlas, t_lo * SHADOW_TILE_M
+
+    def _shadow(self, atlas: tuple[np.ndarray, np.ndarray] | None, px: np.ndarray, py: np.ndarray, pz: np.ndarray,
+                hz: np.ndarray, tol: float) -> np.ndarray:
+        """Fraction (0..1) of sun blocked by leaves at points (N,) with height above ground ``hz``."""
+        out = np.zeros(px.shape, np.float32)
+        if atlas is None or not px.size:
+            return out
+        amap, corner = atlas
+        disp = -self.sky.sun_dir[:2] / max(self.sky.sun_dir[2], 0.05)
+        u = (px + hz * _F32(disp[0]) - _F32(corner[0])) / _F32(SHADOW_TEXEL_M) - 0.5
+        v = (py + hz * _F32(disp[1]) - _F32(corner[1])) / _F32(SHADOW_TEXEL_M) - 0.5
+        inside = (u >= 0) & (v >= 0) & (u < amap.shape[1] - 1) & (v < amap.shape[0] - 1)
+        if np.any(inside):
+            occ = remap_points(amap, u[inside], v[inside], wrap=False)
+            out[inside] = np.clip((occ - pz[inside] - _F32(tol)) / _F32(0.01), 0.0, 1.0)
+        return out
+
+    def _row_shadow(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Analytic canopy shadow and ambient occlusion of ground points between rows: (shadow, ao), (N,)."""
+        s = _F32(self.cfg_field.row_spacing_m)
+        hc = self.field.canopy_height()
+        w = float(self.field.canopy_half_width(np.array(hc)))
+        x0, x1, y0, y1 = self.field.row_extent
+        sd = self.sky.sun_dir
+        shadow = np.zeros(px.shape, np.float32)
+        for frac in (0.2, 0.45, 0.7):
+            z = frac * hc
+            qx = px + _F32(z * sd[0] / max(sd[2], 0.05))
+            qy = py + _F32(z * sd[1] / max(sd[2], 0.05))
+            d = np.abs(qx - s * np.round(qx / s))
+            occ = (d < w * (1 - frac)) & (qy > y0) & (qy < y1) & (qx > x0) & (qx < x1)
+            shadow += occ.astype(np.float32) * _F32(1 / 3)
+        d0 = np.abs(px - s * np.round(px / s))
+        inrows = (py > y0) & (py < y1) & (px > x0) & (px < x1)
+        ao = 1.0 - _F32(0.45) * np.exp(-(d0 / _F32(0.8 * w)) ** 2) * inrows
+        return shadow, ao.astype(np.float32)
+
+    # ---- main entry --------------------------------------------------------------------------------------------------
+    def render_frame(self, T_F_imu: np.ndarray, t_s: float, exposure: float, sun_e: float, noise_left: np.ndarray,
+                     noise_right: np.ndarray, right_depth: bool = False) -> StereoRender:
+        """Render a stereo frame.
+
+        Args:
+            T_F_imu: (4, 4) IMU pose in the field frame (maps IMU points into F) at the exposure time.
+            t_s: time since the sequence start (clouds drift), seconds.
+            exposure: multiplier from radiance to sensor level (1 = full scale), shared by both cameras.
+            sun_e: direct sun irradiance (relative units; see :mod:`pipeline.sim.lighting`).
+            noise_left, noise_right: (376, 672, 3) float32 standard-normal samples for the sensor noise.
+            right_depth: also trace the rectified right camera's depth and labels (for occlusion analysis).
+        """
+        from pipeline.sim.mount import camera_poses
+
+        T_L, T_R = camera_poses(T_F_imu, self.rig)
+        mid = 0.5 * (T_L[:3, 3] + T_R[:3, 3])
+        fwd = T_L[:3, 2][:2]
+        polys = self.select_polys(mid[:2], fwd)
+        atlas = self.shadow_atlas(mid[:2], fwd)
+        cam = self.cfg_cam
+
+        def left_job() -> tuple:
+            ids = self._raster(self.left, T_L, polys)
+            tr = self._trace(self.left.raw_bundle, T_L, polys, ids, mid[:2])
+            rad, _ = self._shade(self.left.raw_bundle, tr, T_L, polys, t_s, sun_e, atlas)
+            img, level = self._camera(self.left, rad, exposure, noise_left, 1.0, 0.0)
+            rect = self._trace(self.left.rect_bundle, T_L, polys, ids, mid[:2])
+            g = self._glare(self.left.rect_bundle, rect.dirs, T_L[:3, :3], sun_e)
+            glare = np.zeros(rect.t.shape, np.float32) if g is None else g * _F32(exposure)
+            return img, level, rect, glare
+
+        def right_job() -> tuple:
+            ids = self._raster(self.right, T_R, polys)
+            tr = self._trace(self.right.raw_bundle, T_R, polys, ids, mid[:2])
+            rad, _ = self._shade(self.right.raw_bundle, tr, T_R, polys, t_s, sun_e, atlas)
+            img, _ = self._camera(self.right, rad, exposure, noise_right, cam.right_gain, cam.right_offset_dn)
+            rect = self._trace(self.right.rect_bundle, T_R, polys, ids, mid[:2]) if right_depth else None
+            return img, rect
+
+        if self._pool is not None:
+            fut = self._pool.submit(right_job)
+            left, mean_level, rect_l, glare = left_job()
+            right, rect_r = fut.result()
+        else:
+            left, mean_level, rect_l, glare = left_job()
+            right, rect_r = right_job()
+        rd = rl = None
+        if rect_r is not None:
+            rd, rl = rect_r.t, rect_r.label
+        return StereoRender(left, right, rect_l.t, rect_l.label, glare, rd, rl, mean_level)
+
+    def _trace(self, bundle: RayBundle, T_F_rect: np.ndarray, polys: PolySet, ids: np.ndarray,
+               ref_xy: np.ndarray) -> Trace:
+        """Nearest surface along every ray of ``bundle`` (camera pose ``T_F_rect``; polygon raster ``ids``;
+        ``ref_xy`` the frame's level-of-detail reference point, shared by both cameras)."""
+        R = np.asarray(T_F_rect[:3, :3], np.float64)
+        o = np.asarray(T_F_rect[:3, 3], np.float64)
+        dirs = cv2.transform(bundle.rays, R.astype(np.float32))  # (H, W, 3), rectified z = 1
+        H, W = dirs.shape[:2]
+        dx, dy, dz = dirs[..., 0], dirs[..., 1], dirs[..., 2]
+        t, _, hgx, hgy = self.terrain.intersect(o, dirs, T_MAX_M, ref_xy=ref_xy)
+        label = np.where(np.isfinite(t), LABEL_SOIL, LABEL_SKY).astype(np.uint8)
+        # far canopy plane
+        hc = _F32(self.field.canopy_height())
+        x0, x1, y0, y1 = self.field.row_extent
+        tc = (hc - _F32(o[2])) / np.where(dz < 0, dz, _F32(-1e-9))
+        pcx = _F32(o[0]) + tc * dx
+        pcy = _F32(o[1]) + tc * dy
+        canopy = (dz < 0) & (tc < t) & (pcx > x0) & (pcx < x1) & (pcy > y0) & (pcy < y1) & \
+            ((pcx - _F32(o[0])) ** 2 + (pcy - _F32(o[1])) ** 2 >= _F32(PRISM1_RANGE_M ** 2))
+        t = np.where(canopy, tc, t).astype(np.float32)
+        label[canopy] = LABEL_CANOPY
+        flat_t = t.reshape(-1)
+        flat_label = label.reshape(-1)
+        fd = dirs.reshape(-1, 3)
+        # tree lines (rays near or above the horizon)
+        cand = np.flatnonzero(fd[:, 2] > -0.02 * np.sqrt(fd[:, 0] ** 2 + fd[:, 1] ** 2))
+        trees = []
+        for k, radius in enumerate(self.tree_radii):
+            if not cand.size:
+                break
+            d = fd[cand].astype(np.float64)
+            oc = o[:2] - self.centre
+            a = d[:, 0] ** 2 + d[:, 1] ** 2
+            bq = 2 * (d[:, 0] * oc[0] + d[:, 1] * oc[1])
+            tt = (-bq + np.sqrt(np.maximum(bq * bq - 4 * a * (oc @ oc - radius ** 2), 0))) / (2 * a)
+            zt = o[2] + tt * d[:, 2]
+            phi = np.arctan2(o[1] + tt * d[:, 1] - self.centre[1], o[0] + tt * d[:, 0] - self.centre[0])
+            prof = self.tree_profiles[k]
+            idx = (phi / (2 * np.pi) % 1.0) * len(prof)
+            i0 = idx.astype(np.int64) % len(prof)
+            fr = idx - np.floor(idx)
+            top = prof[i0] * (1 - fr) + prof[(i0 + 1) % len(prof)] * fr
+            hit = (zt <= top) & (zt >= -2.0) & (tt < flat_t[cand])
+            sel = cand[hit]
+            flat_t[sel] = tt[hit]
+            flat_label[sel] = LABEL_TREES
+            trees.append((sel, phi[hit] * radius, zt[hit], k))
+            cand = cand[~hit]
+        # polygons: the raster gives the candidate; the exact ray/plane hit gives the depth (z-test vs the rest)
+        pid = ids[bundle.raster_y, bundle.raster_x].reshape(-1)
+        has = np.flatnonzero(pid >= 0)
+        poly_px = poly_k = np.zeros(0, np.int64)
+        if has.size:
+            k = pid[has]
+            nrm = polys.normal.astype(np.float32)[k]
+            num = np.einsum("ij,ij->i", polys.normal, polys.origin - o).astype(np.float32)[k]
+            den = nrm[:, 0] * fd[has, 0] + nrm[:, 1] * fd[has, 1] + nrm[:, 2] * fd[has, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tk = num / den
+            ok = (tk > NEAR_M) & (tk < flat_t[has]) & (np.abs(den) > 1e-9)
+            # the hit must lie on the polygon (within its radius plus a pixel): a ray through the edge of a
+            # nearly edge-on polygon would otherwise meet its plane far from the polygon itself
+            rel = tk[:, None] * fd[has] - (polys.origin - o).astype(np.float32)[k]
+            reach = polys.radius.astype(np.float32)[k] + _F32(2.0 * bundle.pixel_angle) * np.abs(tk) * \
+                bundle.ray_norm.reshape(-1)[has]
+            ok &= np.einsum("ij,ij->i", rel, rel) <= reach * reach
+            poly_px, poly_k = has[ok], k[ok]
+            flat_t[poly_px] = tk[ok]
+            flat_label[poly_px] = np.where(polys.material[poly_k] == MAT_CANOPY, LABEL_CANOPY, LABEL_LEAF)
+            canopy.reshape(-1)[poly_px] = False
+        return Trace(dirs, t, label, hgx, hgy, canopy, poly_px, poly_k, trees)
+
+    def _shade(self, bundle: RayBundle, tr: Trace, T_F_rect: np.ndarray, polys: PolySet, t_s: float, sun_e: float,
+               atlas) -> tuple[np.ndarray, np.ndarray]:
+        """Linear radiance (H, W, 3) and glare radiance (H, W) of a traced bundle."""
+        o = np.asarray(T_F_rect[:3, 3], np.float64)
+        H, W = tr.t.shape
+        rad = np.zeros((H, W, 3), np.float32)
+        glare_rad = np.zeros(H * W, np.float32)
+        flat = rad.reshape(-1, 3)
+        fd = tr.dirs.reshape(-1, 3)
+        flat_t = tr.t.reshape(-1)
+        norm_d = bundle.ray_norm.reshape(-1)
+        soil = tr.label == LABEL_SOIL
+        if soil.any():
+            self._shade_soil(bundle, o, tr, soil, sun_e, atlas, rad)
+        cpl = np.flatnonzero(tr.canopy.reshape(-1))
+        if cpl.size:
+            px = _F32(o[0]) + flat_t[cpl] * fd[cpl, 0]
+            py = _F32(o[1]) + flat_t[cpl] * fd[cpl, 1]
+            fp = flat_t[cpl] * norm_d[cpl] * _F32(bundle.pixel_angle) / \
+                np.sqrt(np.maximum(-fd[cpl, 2] / norm_d[cpl], 0.03))
+            flat[cpl] = self.foliage.sample(px * 7.3, py, fp) * _F32(0.75 + sun_e * 0.6 * self.sky.sun_dir[2])
+        if tr.poly_px.size:
+            r, g = self._shade_polys(bundle, o, fd[tr.poly_px], flat_t[tr.poly_px], norm_d[tr.poly_px], polys,
+                                     tr.poly_k, sun_e, atlas)
+            flat[tr.poly_px] = r
+            glare_rad[tr.poly_px] += g
+        for sel, arc, zt, k in tr.trees:
+            if sel.size:
+                fp = flat_t[sel] * norm_d[sel] * bundle.pixel_angle
+                shade = (0.75 + 0.25 * np.clip(zt / 12.0, 0, 1)).astype(np.float32)
+                flat[sel] = self.trees_tex.sample(arc, zt + 50.0 * k, fp) * _F32(0.9 + 0.14 * sun_e) * shade[:, None]
+        sky = tr.label == LABEL_SKY
+        if sky.any():
+            self._shade_sky(bundle, tr.dirs, sky, o, t_s, sun_e, rad)
+        dist = flat_t * norm_d
+        far = np.flatnonzero((tr.label.reshape(-1) != LABEL_SKY) & (dist > 20.0))
+        if far.size:
+            e = np.exp(-dist[far] * _F32(self.cfg_light.haze / 3000.0))[:, None]
+            flat[far] = flat[far] * e + self.sky.horizon[None] * _F32(1.1) * (1 - e)
+        g = self._glare(bundle, tr.dirs, T_F_rect[:3, :3], sun_e)
+        if g is not None:
+            rad += g[..., None] * np.array([1.0, 0.97, 0.9], np.float32)
+            glare_rad += g.reshape(-1)
+        return rad, glare_rad.reshape(H, W)
+
+    def _camera(self, view: CameraView, rad: np.ndarray, exposure: float, noise: np.ndarray, gain: float,
+                offset_dn: float) -> tuple[np.ndarray, float]:
+        """Sensor model: exposure, optics blur, vignetting and gain, gamma, noise → (uint8 BGR, mean level)."""
+        lin = rad * _F32(exposure)
+        if self.cfg_cam.blur_sigma_px > 0:
+            lin = cv2.GaussianBlur(lin, (0, 0), self.cfg_cam.blur_sigma_px)
+        lin *= (view.vignette * _F32(gain))[..., None]
+        val = np.clip(lin, 0.0, 1.0) ** _F32(1 / 2.2)
+        mean_level = float(val.mean())
+        dn = val * _F32(255.0) + _F32(offset_dn)
+        sigma = np.sqrt(_F32(self.cfg_cam.read_noise_dn ** 2) + _F32(self.cfg_cam.shot_noise) * np.maximum(dn, 0))
+        dn += sigma * noise
+        rgb = np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+        return np.ascontiguousarray(rgb[..., ::-1]), mean_level
+
+    # ---- pieces --------------------------------------------------------------------------------------------------------
+    def _raster(self, view: CameraView, T_F_rect: np.ndarray, polys: PolySet) -> np.ndarray:
+        """Polygon id raster (H_r, W_r) int32 of the nearest polygon in painter's order (-1 = none)."""
+        R = np.asarray(T_F_rect[:3, :3], np.float64)
+        o = np.asarray(T_F_rect[:3, 3], np.float64)
+        buf = np.zeros((view.height, view.width), np.int32)
+        if not len(polys):
+            return buf - 1
+        v = (polys.verts - o).astype(np.float32) @ R.astype(np.float32)  # (N, V, 3) rectified camera frame
+        z = v[..., 2]
+        front = (z > NEAR_M).all(1)
+        facing = (np.einsum("ij,ij->i", polys.normal, o[None] - polys.origin) > 0) | (polys.material != MAT_CANOPY)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = view.fx * v[..., 0] / z + view.cx
+            w = view.fy * v[..., 1] / z + view.cy
+        ok = front & facing & (u.max(1) >= -1) & (u.min(1) <= view.width) & (w.max(1) >= -1) & \
+            (w.min(1) <= view.height)
+        idx = np.flatnonzero(ok)
+        if not idx.size:
+            return buf - 1
+        rel = polys.origin[idx] - o
+        order = idx[np.argsort(-np.einsum("ij,ij->i", rel, rel), kind="stable")]
+        pts = np.round(np.clip(np.stack([u, w], -1), -4000, 8000) * 16).astype(np.int32)
+        fill = cv2.fillPoly
+        line8 = cv2.LINE_8
+        for k in order.tolist():
+            fill(buf, [pts[k]], k + 1, line8, 4)
+        return buf - 1
+
+    def _shade_sky(self, bundle: RayBundle, dirs: np.ndarray, sky: np.ndarray, o: np.ndarray, t_s: float,
+                   sun_e: float, out: np.ndarray) -> None:
+        """Sky radiance into ``out`` at ``sky`` pixels: computed on a 3× coarser grid (the sky is smooth) and
+        upsampled, plus the sun disk at full resolution."""
+        H, W = sky.shape
+        step = 3
+        rows = np.any(sky, axis=1)
+        r0 = int(np.argmax(rows))
+        r1 = int(H - np.argmax(rows[::-1]))
+        ys = np.arange(r0, r1 + step, step).clip(0, H - 1)
+        xs = np.arange(0, W + step, step).clip(0, W - 1)
+        cd = dirs[np.ix_(ys, xs)]
+        cd = cd / np.linalg.norm(cd, axis=-1, keepdims=True)
+        coarse = self.sky.radiance(cd.reshape(-1, 3), o, t_s, sun_e, bundle.pixel_angle * step,
+                                   sun_disk=False).reshape(len(ys), len(xs), 3)
+        gy = ((np.arange(r0, r1) - ys[0]) / step).astype(np.float32)
+        gx = (np.arange(W) / step).astype(np.float32)
+        mxg, myg = np.meshgrid(gx, gy)
+        fine = cv2.remap(coarse, mxg, myg, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        band = sky[r0:r1]
+        out[r0:r1][band] = fine[band]
+        # the sun disk (and its area-weighted brightness when smaller than a pixel)
+        sd = self.sky.sun_dir.astype(np.float32)
+        cosang = (dirs[..., 0] * sd[0] + dirs[..., 1] * sd[1] + dirs[..., 2] * sd[2]) / bundle.ray_norm
+        disk_r = max(SUN_RADIUS_RAD, 0.5 * bundle.pixel_angle)
+        disk = sky & (cosang > np.cos(disk_r))
+        if disk.any():
+            frac = (SUN_RADIUS_RAD / disk_r) ** 2
+            out[disk] += _F32(400.0 * sun_e * frac)
+
+    def _shade_soil(self, bundle: RayBundle, o: np.ndarray, tr: Trace, soil: np.ndarray, sun_e: float, atlas,
+                    out: np.ndarray) -> None:
+        """Shade the soil pixels of ``out`` (H, W, 3) in place (full-image arrays, row-band texture sampling)."""
+        dirs = tr.dirs
+        tt = np.where(soil, tr.t, _F32(0))
+        px = _F32(o[0]) + tt * dirs[..., 0]
+        py = _F32(o[1]) + tt * dirs[..., 1]
+        cos_inc = np.maximum(-dirs[..., 2] / bundle.ray_norm, _F32(0.02))
+        fp = tt * bundle.ray_norm * _F32(bundle.pixel_angle) / np.sqrt(cos_inc)
+        lod_m = np.log2(np.maximum(fp, _F32(1e-6)))
+        st = self.soil
+        surf = sample_rows(st.surface, px, py, lod_m - _F32(np.log2(st.surface.texel_m)), soil)
+        grain = sample_rows(st.grain, px, py, lod_m - _F32(np.log2(st.grain.texel_m)), soil, max_level=4)
+        large = sample_level(st.large, px, py, 1)
+        gx = tr.hgx + surf[..., 3]
+        gy = tr.hgy + surf[..., 4]
+        inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
+        sd = self.sky.sun_dir
+        lam = np.maximum((_F32(sd[2]) - gx * _F32(sd[0]) - gy * _F32(sd[1])) * inv, 0)
+        dist = tt * bundle.ray_norm
+        shadow = np.zeros_like(tt)
+        ao = np.ones_like(tt)
+        rng_m = self.cfg_render.shadow_range_m
+        near = soil & (dist < rng_m)
+        if near.any():
+            z0 = np.zeros(int(near.sum()), np.float32)
+            shadow[near] = self._shadow(atlas, px[near], py[near], z0, z0, 0.01)
+        in_rows = soil & (px > -1.0) & (px < self.field.row_extent[1] + 1.0) & (py > -1.0) & \
+            (py < self.field.row_extent[3] + 1.0)
+        if in_rows.any():
+            rs, ao_r = self._row_shadow(px[in_rows], py[in_rows])
+            blend = np.clip(dist[in_rows] - _F32(rng_m - 1.0), 0, 1)
+            shadow[in_rows] = shadow[in_rows] * (1 - blend) + rs * blend
+            ao[in_rows] = ao_r
+        irr = (_F32(0.55) + _F32(0.45) * inv) * ao + _F32(sun_e) * lam * (1 - shadow)
+        col = surf[..., :3] * (grain * large * irr)[..., None]
+        out[soil] = col[soil]
+
+    def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
+                     polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:
+        """Radiance (N, 3) and glare radiance (N,) of polygon pixels with rays ``d`` and depths ``t``."""
+        rel = (t[:, None] * d) - (polys.origin - o).astype(np.float32)[k]
+        e1 = polys.e1.astype(np.float32)[k]
+        e2 = polys.e2.astype(np.float32)[k]
+        a = rel[:, 0] * e1[:, 0] + rel[:, 1] * e1[:, 1] + rel[:, 2] * e1[:, 2]
+        b = rel[:, 0] * e2[:, 0] + rel[:, 1] * e2[:, 1] + rel[:, 2] * e2[:, 2]
+        n = polys.normal.astype(np.float32)[k]
+        ud = d / norm_d[:, None]
+        ndv = n[:, 0] * ud[:, 0] + n[:, 1] * ud[:, 1] + n[:, 2] * ud[:, 2]
+        n[ndv > 0] *= -1  # two-sided: the normal towards the viewer
+        sd = self.sky.sun_dir.astype(np.float32)
+        ndl = n @ sd
+        mat = polys.material[k]
+        fp = t * norm_d * _F32(bundle.pixel_angle) / np.sqrt(np.maximum(np.abs(ndv), 0.05))
+        out = np.zeros((len(t), 3), np.float32)
+        glare = np.zeros(len(t), np.float32)
+        leaf = mat != MAT_CANOPY
+        if leaf.any():
+            li = np.flatnonzero(leaf)
+            kk = k[li]
+            size = polys.size.astype(np.float32)[kk]
+            aa = a[li] / size
+            bb = b[li] / size
+            midrib = np.exp(-(bb / _F32(0.02)) ** 2)
+            vein = np.maximum(np.cos(_F32(2 * np.pi / 0.14) * (aa - 1.5 * np.abs(bb))), 0) ** 10 * (np.abs(bb) < 0.28)
+            soy = (mat[li] == MAT_LEAF).astype(np.float32)
+            ex = polys.extra[kk]
+            lvl = int(np.clip(np.round(np.log2(max(float(np.median(fp[li])), 1e-6) / self.leaf_noise.texel_m)), 0, 6))
+            tex = (1.0 + (_F32(0.22) * midrib + _F32(0.10) * vein) * soy) * \
+                sample_level(self.leaf_noise, a[li] + 7.1 * ex, b[li] + 3.3 * ex, lvl)
+            albl = polys.albedo[kk] * tex[:, None]
+            # leaves are not flat: folded along the midrib and arched along it (shading normal only)
+            fold = (_F32(0.6) + _F32(0.9) * ex) * np.clip(bb, -0.35, 0.35)
+            arch = _F32(0.5) * (aa - _F32(0.5))
+            sgn = np.where(ndv[li] > 0, _F32(-1), _F32(1))[:, None]
+            nl = n[li] + sgn * (fold[:, None] * e2[li] + arch[:, None] * e1[li])
+            nl /= np.linalg.norm(nl, axis=1, keepdims=True)
+            n[li] = nl
+            ndl[li] = nl @ sd
+            pz = _F32(o[2]) + t[li] * d[li, 2]
+            px = _F32(o[0]) + t[li] * d[li, 0]
+            py = _F32(o[1]) + t[li] * d[li, 1]
+            hz = pz - polys.ground.astype(np.float32)[kk]
+            hrel = np.clip(hz / _F32(max(self.cfg_field.plant_height_m, 0.05)), 0, 1.2)
+            ao = _F32(0.45) + _F32(0.55) * hrel
+            sh = self._shadow(atlas, px, py, pz, hz, 0.03)
+            lit = _F32(sun_e) * (1 - sh)
+            front = np.maximum(ndl[li], 0)
+            trans = np.maximum(-ndl[li], 0) * _F32(0.45)
+            ambient = ao * (_F32(0.55) + _F32(0.45) * np.abs(nl[:, 2]))
+            col = albl * (ambient + lit * (front + trans * _F32(0.8)))[:, None]
+            col += albl * np.array([0.25, 0.35, 0.0], np.float32)[None] * (lit * trans)[:, None]
+            hv = sd[None] - ud[li]
+            hv /= np.linalg.norm(hv, axis=1, keepdims=True)
+            ndh = np.maximum(nl[:, 0] * hv[:, 0] + nl[:, 1] * hv[:, 1] + nl[:, 2] * hv[:, 2], 0)
+            spec = (ndh ** 48) * (ndl[li] > 0) * lit * _F32(self.cfg_light.leaf_gloss * 0.9) * (_F32(0.6) + _F32(0.8) * ex)
+            col += spec[:, None] * np.array([1.0, 1.0, 0.95], np.float32)[None]
+            out[li] = col
+            glare[li] = spec
+        if (~leaf).any():
+            ci = np.flatnonzero(~leaf)
+            var = polys.extra[k[ci]]
+            alb_t = self.foliage.sample(a[ci] + 13.7 * var, b[ci] + 5.1 * var, fp[ci])
+            ao = 1.0 - _F32(0.35) * np.clip(b[ci] / _F32(0.35), 0, 1)
+            irr = ao * _F32(0.8) + _F32(sun_e * 0.85) * np.maximum(ndl[ci], 0)
+            out[ci] = alb_t * irr[:, None]
+        return out, glare
+
+    def _glare(self, bundle: RayBundle, dirs: np.ndarray, R: np.ndarray, sun_e: float) -> np.ndarray | None:
+        """Veiling glare + flare ghosts (H, W) radiance, or None when negligible (sun well behind the camera)."""
+        strength = self.cfg_light.glare * sun_e / 3.0
+        s_cam = np.asarray(R, np.float64).T @ self.sky.sun_dir
+        if strength <= 0 or s_cam[2] < -0.3:
+            return None
+        sd = self.sky.sun_dir.astype(np.float32)
+        cosang = (dirs[..., 0] * sd[0] + dirs[..., 1] * sd[1] + dirs[..., 2] * sd[2]) / bundle.ray_norm
+        ang2 = np.maximum(2 * (1 - cosang), 0)  # ≈ angle² near the sun
+        g = (_F32(0.35) / (1 + ang2 / _F32(0.0025)) + _F32(0.06) * np.exp(-np.sqrt(ang2) / _F32(0.3))) * \
+            _F32(strength)
+        if s_cam[2] > 0.3:  # sun within ≈70° of the optical axis: ghosts on the line through the image centre
+            # ghost positions in rectified-normalised coordinates, so both bundles of a camera agree
+            sx, sy = s_cam[0] / s_cam[2], s_cam[1] / s_cam[2]
+            cam_rays = bundle.rays
+            axis_w = float(np.clip((s_cam[2] - 0.3) / 0.5, 0, 1))
+            for f, rad, amp in ((-0.4, 0.063, 0.05), (-0.85, 0.108, 0.03), (-1.3, 0.04, 0.07)):
+                gx, gy = sx * f, sy * f
+                r2 = ((cam_rays[..., 0] - _F32(gx)) ** 2 + (cam_rays[..., 1] - _F32(gy)) ** 2) / _F32(rad ** 2)
+                near = r2 < 4.0
+                if near.any():
+                    g[near] += _F32(amp * strength * axis_w) * np.exp(-r2[near] ** 2)
+        return g
