@@ -31,3 +31,9 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory, rosario_rig: StereoRig) 
     path = tmp_path_factory.mktemp("bags") / "small.bag"
     truth = write_synthetic_bag(path, n_frames=SMALL_BAG_FRAMES, rig=rosario_rig, seed=3)
     return path, truth
+
+
+@pytest.fixture(scope="session")
+def sim_cache(tmp_path_factory) -> Path:
+    """A cache folder shared by the end-to-end tests: the ``tiny`` preset is simulated into it once."""
+    return tmp_path_factory.mktemp("agrivio-cache")

@@ -80,11 +80,3 @@ def test_info_command(small_bag, capsys):
     assert main(["info", str(small_bag[0])]) == 0
     out = capsys.readouterr().out
     assert "/stereo/left/image_raw" in out and "tf_static" in out and "baseline          0.11872 m" in out
-
-
-def test_demo_command(tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("AGRIVIO_CACHE", str(tmp_path))
-    assert main(["demo", "--frames", "3"]) == 0
-    out = capsys.readouterr().out
-    assert "frames              3 (3 computed" in out and "depth vs truth" in out
-    assert (tmp_path / "demo" / "synthetic_3f_seed0.bag").is_file()

@@ -13,8 +13,8 @@ VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 
 
 @pytest.fixture(scope="module")
-def runs_dir(tmp_path_factory):
-    cache = tmp_path_factory.mktemp("cache")
+def runs_dir(tmp_path_factory, sim_cache):
+    cache = sim_cache
     out = tmp_path_factory.mktemp("runs")
     mp = pytest.MonkeyPatch()
     mp.setenv("AGRIVIO_CACHE", str(cache))
@@ -72,3 +72,15 @@ def test_rerun_keeps_finished_runs(runs_dir):
     done, pending = pending_jobs(jobs)
     assert not pending and len(done) == 8
     assert {p: p.stat().st_mtime_ns for p in runs_dir.glob("tiny/*/seed*/record.json")} == before
+
+
+def test_demo_command_small(sim_cache, tmp_path, monkeypatch, capsys):
+    """The demo's wiring on the tiny preset (the real demo runs three 12 s sequences, 5 runs, all variants)."""
+    monkeypatch.setenv("AGRIVIO_CACHE", str(sim_cache))
+    out = tmp_path / "demo"
+    assert main(["demo", "--presets", "tiny", "--runs", "1", "--variants", "depth-raw,odometry", "--no-bench",
+                 "--out", str(out), "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "report:" in printed and "replay:" in printed
+    assert (out / "report" / "report.html").is_file()
+    assert (out / "replay" / "tiny.rrd").is_file()

@@ -1,52 +1,107 @@
-"""``agrivio demo`` (interim): write a small synthetic Rosario-layout bag, run the depth stage, print a summary.
+"""``agrivio demo``: the main job on the embedded default — no data needed.
 
-Replaced by the end-to-end demo later. Takes a few seconds; data go to the agrivio cache dir.
+1. simulates three Rosario-like sequences (``rosario-like-01`` … ``-03``: camera tilt 19° / 12° / 7°, different
+   speed, lighting and roughness), cached under the cache folder;
+2. computes stereo depth (StereoSGBM) and inpaints it with the paper's method (cached);
+3. runs every variant (stereo, depth-raw, depth-inpainted, odometry) five times per sequence;
+4. benchmarks the inpainting methods on simulated frames with exact depth (the paper's Table 1);
+5. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
+
+The default sizes finish in about 15 minutes on a 2-core machine; ``--full`` simulates 60 s sequences.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
+import time
+from pathlib import Path
 
-import numpy as np
-
-from pipeline.bag_reader import RosarioSequence
-from pipeline.commands.depth import print_summary, run_depth
-from pipeline.depth import DepthParams
-from pipeline.depth_cache import depth_stream
+from pipeline.commands.compare import write_comparison_report
+from pipeline.commands.run_sequence import parse_variants
+from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
-from pipeline.synthetic_scene import StereoRenderer, write_synthetic_bag
+from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
-DEMO_FRAMES = 30
+PRESETS = ("rosario-like-01", "rosario-like-02", "rosario-like-03")
+DEFAULT_DURATION_S = 12.0
+FULL_DURATION_S = 60.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("demo", help="interim demo: synthetic bag -> stereo depth stage -> summary")
-    p.add_argument("--frames", type=int, default=DEMO_FRAMES, help=f"stereo frames to simulate ({DEMO_FRAMES})")
+    p = subparsers.add_parser("demo", help="simulate Rosario-like sequences, run every variant 5×, write the report",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: <cache>/demo)")
+    p.add_argument("--full", action="store_true", help=f"{FULL_DURATION_S:g} s sequences (longer run)")
+    p.add_argument("--duration", type=float, default=None,
+                   help=f"simulated seconds per sequence (default {DEFAULT_DURATION_S:g}; --full: {FULL_DURATION_S:g})")
+    p.add_argument("--runs", type=int, default=5, help="seeded runs per variant (default 5)")
+    p.add_argument("--variants", default=",".join(DEFAULT_VARIANTS), help="comma-separated variants (default: all)")
+    p.add_argument("--presets", default=",".join(PRESETS), help="comma-separated simulator presets")
+    p.add_argument("--inpaint", default="paper", metavar="METHOD", help="method of depth-inpainted (default paper)")
+    p.add_argument("--workers", type=int, default=None, help="parallel runs (default: all cores)")
+    p.add_argument("--no-bench", action="store_true", help="skip the inpainting benchmark")
+    p.add_argument("--no-replay", action="store_true", help="skip the rerun replay")
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    root = cache_dir()
-    bag = root / "demo" / f"synthetic_{args.frames}f_seed0.bag"
-    if not bag.exists():
-        print(f"writing synthetic bag {bag} ({args.frames} stereo frames, IMU, GPS, odom, tf_static) ...")
-        write_synthetic_bag(bag, n_frames=args.frames, seed=0, compression="lz4")
-    seq = RosarioSequence(bag)
-    print(f"bag                 {bag} ({seq.size_bytes / 1e6:.1f} MB, {seq.duration_s:.2f} s)")
-    params = DepthParams()
-    summary = run_depth(seq, params, cache=True, cache_root=root, max_frames=None, progress=True)
-    print_summary(summary)
+def _inpaint_bench(out: Path) -> Path | None:
+    """The small inpainting benchmark; its Markdown table goes next to the runs for the report."""
+    from pipeline.cli import main as cli_main
 
-    # The synthetic scene knows its depth: check the stage against it (valid pixels only, holes stay holes).
-    renderer = StereoRenderer(seq.calibration)
-    errors = []
-    for frame in depth_stream(seq, params, cache=True, progress=False, cache_root=root, stop_index=5):
-        pose = np.eye(4)
-        pose[0, 3] = 0.5 * (frame.stamp_ns - seq.start_ns) / 1e9  # write_synthetic_bag's default motion
-        gt = renderer.rectified_depth(pose)
-        m = frame.valid & np.isfinite(gt)
-        errors.append(np.abs(frame.depth_m[m] - gt[m]) / gt[m])
-    err = np.concatenate(errors)
-    print(f"depth vs truth      median rel. error {np.median(err) * 100:.2f} %, "
-          f"p95 {np.percentile(err, 95) * 100:.2f} % (first 5 frames, valid pixels)")
+    bench_dir = out / "inpaint_bench"
+    code = cli_main(["inpaint-bench", "--small", "--methods", "paper,ebm,telea,ns,biharmonic,ipbasic",
+                     "--out", str(bench_dir), "--quiet"])
+    if code != 0 or not (bench_dir / "results.md").is_file():
+        print("inpainting benchmark failed; the report goes on without it")
+        return None
+    shutil.copyfile(bench_dir / "results.md", out / "inpaint_bench.md")
+    return bench_dir
+
+
+def run(args: argparse.Namespace) -> int:
+    t_start = time.perf_counter()
+    if args.runs < 1:
+        raise AgrivioError("--runs must be at least 1")
+    out: Path = args.out or cache_dir() / "demo"
+    duration = args.duration or (FULL_DURATION_S if args.full else DEFAULT_DURATION_S)
+    presets = [p.strip() for p in args.presets.split(",") if p.strip()]
+    variants = parse_variants(args.variants)
+    print(f"agrivio demo: {len(presets)} simulated sequences × {duration:g} s, variants {', '.join(variants)}, "
+          f"{args.runs} runs each → {out}")
+    # The Rosario-like presets are shortened to the demo's duration; other presets (e.g. ``tiny``) keep their own.
+    specs = [SequenceSpec(p, duration_s=duration if p.startswith("rosario-like") or args.duration else None)
+             for p in presets]
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    records = run_matrix(specs, variants, range(args.runs), out, cache_dir(), inpaint_method=args.inpaint,
+                         workers=args.workers)
+    timings["runs_s"] = time.perf_counter() - t0
+    bench_dir = None
+    if not args.no_bench:
+        t0 = time.perf_counter()
+        print("\ninpainting benchmark (simulated frames with exact depth, real SGBM hole masks) ...")
+        bench_dir = _inpaint_bench(out)
+        timings["bench_s"] = time.perf_counter() - t0
+    report_dir, _ = write_comparison_report(out, out / "report")
+    replays: list[Path] = []
+    if not args.no_replay:
+        from pipeline.commands.replay import replay_runs
+
+        t0 = time.perf_counter()
+        seq = specs[0].source
+        run_dirs = [out / seq / v / "seed0" for v in variants if (out / seq / v / "seed0" / "estimate.tum").is_file()]
+        if run_dirs:
+            replays.append(replay_runs(run_dirs, out / "replay" / f"{seq}.rrd", every=2, progress=True))
+        timings["replay_s"] = time.perf_counter() - t0
+    n_failed = sum(1 for r in records if r.get("status") != "ok")
+    wall = time.perf_counter() - t_start
+    print(f"\n{len(records)} runs ({n_failed} failed) in {wall / 60:.1f} min "
+          f"(runs {timings['runs_s'] / 60:.1f} min" + (f", benchmark {timings['bench_s'] / 60:.1f} min"
+                                                        if "bench_s" in timings else "") + ")")
+    print(f"report:   {report_dir / 'report.html'}  (Markdown: {report_dir / 'report.md'})")
+    if bench_dir is not None:
+        print(f"inpainting benchmark: {bench_dir / 'results.md'}, figure grid {bench_dir / 'grid.png'}")
+    for path in replays:
+        print(f"replay:   {path}  (open with: rerun {path})")
     return 0
