@@ -8,8 +8,11 @@ sibling folder keyed by the method as well; the hole mask of a frame is the raw 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -70,8 +73,12 @@ def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
 
 
 def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
-                     stats: dict[str, Any] | None = None) -> Iterator[DepthFrame]:
-    """Inpainted depth frames of ``sequence`` in order: from the cache, or computed from the raw depth and cached."""
+                     stats: dict[str, Any] | None = None, workers: int | None = None) -> Iterator[DepthFrame]:
+    """Inpainted depth frames of ``sequence`` in order: from the cache, or computed from the raw depth and cached.
+
+    Frames are independent, so missing ones are inpainted on a process pool of ``workers`` (default: all cores);
+    the result does not depend on the number of workers.
+    """
     if params.method not in METHODS:
         raise AgrivioError(f"unknown inpainting method {params.method!r}; available: {', '.join(sorted(METHODS))}")
     st = stats if stats is not None else {}
@@ -84,23 +91,31 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
             st["cached"] += 1
             yield frame
         return
+    n_workers = max(1, workers or os.cpu_count() or 1)
     raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root)
     n = 0
-    with tqdm(desc=f"inpaint ({params.method})", unit="frame", disable=not progress, leave=False) as bar:
-        for frame in raw:
-            done = store.get(frame.index)
-            if done is None:
+    pool = ProcessPoolExecutor(max_workers=n_workers) if n_workers > 1 else None
+    try:
+        with tqdm(desc=f"inpaint ({params.method})", unit="frame", disable=not progress, leave=False) as bar:
+            while True:
+                batch = list(itertools.islice(raw, 2 * n_workers))
+                if not batch:
+                    break
+                todo = [f for f in batch if store.get(f.index) is None]
                 t0 = time.perf_counter()
-                done = inpaint_frame(frame, params)
+                mapper = pool.map if pool is not None else map
+                for done in mapper(inpaint_frame, todo, itertools.repeat(params)):
+                    store.put(done)
                 st["compute_s"] += time.perf_counter() - t0
-                st["computed"] += 1
-                store.put(done)
-                done = store.get(frame.index) or done  # the cached (millimetre) version, as later reads see it
-            else:
-                st["cached"] += 1
-            n += 1
-            bar.update(1)
-            yield done
+                st["computed"] += len(todo)
+                st["cached"] += len(batch) - len(todo)
+                for f in batch:
+                    n += 1
+                    bar.update(1)
+                    yield store.get(f.index)  # the cached (millimetre) version, as later reads see it
+    finally:
+        if pool is not None:
+            pool.shutdown()
     store.flush()
     store.mark_complete(n)
 

@@ -20,7 +20,7 @@ def runs_dir(tmp_path_factory, sim_cache):
     mp.setenv("AGRIVIO_CACHE", str(cache))
     try:
         code = main(["run-sequence", "tiny", "--out", str(out), "--runs", "2", "--variants", ",".join(VARIANTS),
-                     "--workers", "2"])
+                     "--workers", "2", "--inpaint", "telea"])
     finally:
         mp.undo()
     assert code == 0
@@ -35,12 +35,12 @@ def test_every_run_has_a_sane_record(runs_dir):
         m = r["metrics"]
         # The tiny sequence drives well under a metre after 2.2 s standing still; errors must be far below that.
         assert 0.0 < m["ate_rmse_m"] < 0.5, (r["variant"], m["ate_rmse_m"])
-        assert m["n_pairs"] >= 10
+        assert m["n_pairs"] >= 5  # 5 Hz GPS over the ~1.6 s after the static initialisation
         assert r["code_version"] and r["config_hash"]
         est = runs_dir / "tiny" / r["variant"] / f"seed{r['seed']}" / "estimate.tum"
         assert est.is_file() and len(est.read_text().splitlines()) > 10
     inpainted = [r for r in records if r["variant"] == "depth-inpainted"]
-    assert all(r["inpaint_method"] == "paper" for r in inpainted)
+    assert all(r["inpaint_method"] == "telea" for r in inpainted)
 
 
 def test_report_holds_table2_and_all_variants(runs_dir):
