@@ -139,13 +139,16 @@ class PinholeRadtan:
         return rays * np.asarray(depth, dtype=np.float64).reshape(-1, 1)
 
 
-def _check_transform(T: np.ndarray, name: str) -> np.ndarray:
+def check_transform(T: np.ndarray, name: str) -> np.ndarray:
+    """``T`` as a float64 4×4 rigid transform, or ``MsckfInputError`` (a ``ValueError``) naming ``name``."""
+    from msckf.errors import MsckfInputError
+
     T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"{name} must be 4x4, got {T.shape}")
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise MsckfInputError(f"{name} must be a finite 4x4 transform, got shape {T.shape}")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-4:
-        raise ValueError(f"{name} does not hold a rotation matrix")
+        raise MsckfInputError(f"{name} does not hold a rotation matrix")
     return T
 
 
@@ -178,7 +181,7 @@ class StereoRig:
 
     def __post_init__(self) -> None:
         for name in ("T_right_left", "T_left_imu"):
-            object.__setattr__(self, name, _check_transform(getattr(self, name), name))
+            object.__setattr__(self, name, check_transform(getattr(self, name), name))
         for name, shape in (("R_left", (3, 3)), ("R_right", (3, 3)), ("P_left", (3, 4)), ("P_right", (3, 4))):
             arr = np.asarray(getattr(self, name), dtype=np.float64)
             if arr.shape != shape:
@@ -201,7 +204,7 @@ class StereoRig:
         Args:
             alpha: OpenCV free-scaling parameter; Rosario bags since 2019-03 use 0 (only valid pixels kept).
         """
-        T = _check_transform(T_right_left, "T_right_left")
+        T = check_transform(T_right_left, "T_right_left")
         R1, R2, P1, P2, *_ = cv2.stereoRectify(
             left.K, left.D, right.K, right.D, left.size,
             T[:3, :3].copy(), T[:3, 3].reshape(3, 1).copy(),  # OpenCV 5 rejects a 1-D T

@@ -18,6 +18,7 @@ import numpy as np
 
 from msckf.augmentation import augment
 from msckf.config import MsckfConfig
+from msckf.camera import check_transform
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
 from msckf.propagation import ImuNoise, propagate_samples
@@ -56,16 +57,6 @@ class FrameStats:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def _check_T(T: np.ndarray, name: str) -> np.ndarray:
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise MsckfInputError(f"{name} must be a finite 4x4 transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-4:
-        raise MsckfInputError(f"{name} does not hold a rotation matrix")
-    return T
-
-
 class MsckfFilter:
     """S-MSCKF back end.
 
@@ -82,8 +73,8 @@ class MsckfFilter:
 
     def __init__(self, config: MsckfConfig, T_cam0_imu: np.ndarray, T_cam1_cam0: np.ndarray) -> None:
         self.config = config
-        T_ci = _check_T(T_cam0_imu, "T_cam0_imu")
-        T_10 = _check_T(T_cam1_cam0, "T_cam1_cam0")
+        T_ci = check_transform(T_cam0_imu, "T_cam0_imu")
+        T_10 = check_transform(T_cam1_cam0, "T_cam1_cam0")
         self._R_c_i0 = orthonormalize(T_ci[:3, :3])
         self._p_i_c0 = -self._R_c_i0.T @ T_ci[:3, 3]
         self.R_c1_c0 = orthonormalize(T_10[:3, :3])

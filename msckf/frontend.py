@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from msckf.camera import StereoRig
+from msckf.camera import StereoRig, check_transform
 from msckf.errors import MsckfInputError
 from msckf.frontend_config import FrontendConfig
 from msckf.frontend_depth import DepthReject, depth_to_stereo, rectified_pixels_from_normalised, sample_depth
@@ -111,16 +111,6 @@ class _Tracks:
                          ("ids", "px0", "xy0", "px1", "xy1", "life")))
 
 
-def _check_transform(T: np.ndarray, name: str) -> np.ndarray:
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise MsckfInputError(f"{name} must be a finite 4x4 matrix, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-4:
-        raise MsckfInputError(f"{name} does not hold a rotation matrix")
-    return T
-
-
 def _as_klt(px: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(px, dtype=np.float32).reshape(-1, 1, 2)
 
@@ -135,7 +125,7 @@ class _TrackerBase:
             raise MsckfInputError(f"rig must be a StereoRig, got {type(rig).__name__}")
         self.config = config
         self.rig = rig
-        self.T_cam0_imu = _check_transform(T_cam0_imu, "T_cam0_imu")
+        self.T_cam0_imu = check_transform(T_cam0_imu, "T_cam0_imu")
         self.R_cam0_imu = self.T_cam0_imu[:3, :3]
         self.R_cam1_imu = rig.T_right_left[:3, :3] @ self.R_cam0_imu
         self.seed = int(seed)
