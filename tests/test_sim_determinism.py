@@ -18,7 +18,7 @@ from pipeline.sim.world import Field
 def _run(tmp_path, name: str, seed: int):
     cfg = get_preset("tiny")
     cfg = dataclasses.replace(cfg, duration_s=2.4, field=dataclasses.replace(cfg.field, world_seed=11))
-    return simulate_sequence(cfg, tmp_path / name, seed=seed, max_frames=2, progress=False)
+    return simulate_sequence(cfg, tmp_path / name, seed=seed, max_frames=2, progress=False, ae_warmup=1)
 
 
 def _streams(path):

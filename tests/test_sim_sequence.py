@@ -24,7 +24,7 @@ def sim(tmp_path_factory: pytest.TempPathFactory):
     cfg = get_preset("tiny")
     cfg = dataclasses.replace(cfg, duration_s=2.6, gps=cfg.gps.ideal())
     out = tmp_path_factory.mktemp("sim") / "seq"
-    seq = simulate_sequence(cfg, out, seed=2, max_frames=3, export_euroc=True, progress=False)
+    simulate_sequence(cfg, out, seed=2, max_frames=3, export_euroc=True, progress=False, ae_warmup=1)
     return open_sequence(out)
 
 

@@ -34,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="render processes (default: min(2, CPU count)); results do not depend on it")
     p.add_argument("--max-frames", type=int, default=None, help="render only the first N stereo frames")
+    p.add_argument("--ae-warmup", type=int, default=3, help="renders of frame 0 to settle auto exposure (3)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     seq = simulate_sequence(cfg, args.out, seed=args.seed, duration_s=args.duration,
                             compression=None if args.compression == "none" else args.compression,
                             export_euroc=args.euroc, progress=not args.quiet, right_depth=args.right_depth,
-                            max_frames=args.max_frames, workers=workers)
+                            max_frames=args.max_frames, workers=workers, ae_warmup=args.ae_warmup)
     m = seq.meta
     print(f"sequence   {seq.root}")
     print(f"bag        {seq.bag_path.name} ({seq.bag_path.stat().st_size / 1e6:.1f} MB, {m['duration_s']:g} s, "

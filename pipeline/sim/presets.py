@@ -1,11 +1,12 @@
 """Named simulator presets that differ the way the Rosario v1 sequences do (rosario.md §4.3: camera pitch 19°,
 12° and 7° for sequences 01, 02 and 03), plus speed, lighting, roughness, crop height and route.
 
-* ``rosario-like-01``: camera pitched 19° down; sunny, high sun; 0.85 m/s along the rows with headland turns.
+* ``rosario-like-01``: camera pitched 19° down; sunny, high sun; 0.85 m/s along the rows, starting mid-field, a
+  headland U-turn after ≈50 s.
 * ``rosario-like-02``: 12°; broken clouds drifting over the sun (exposure changes), a rougher field, slower, a
   loop that crosses the rows and stops now and then.
 * ``rosario-like-03``: 7°; low sun ahead of the robot on every other pass (glare and flare), the roughest ground,
-  the tallest plants, fastest.
+  the tallest plants, fastest (1.1 m/s; a headland U-turn after ≈50 s).
 * ``tiny``: ``rosario-like-01`` for 3 s (2.2 s standing still) — for tests. Full 672×376 images.
 """
 
@@ -20,8 +21,8 @@ def _preset_01() -> SimConfig:
     return SimConfig(
         name="rosario-like-01", duration_s=60.0, start_stamp_ns=1_512_130_000_000_000_000,
         field=FieldConfig(plant_height_m=0.28, roughness_m=0.02, straw_cover=0.25, soil_moisture=0.35,
-                          azimuth_deg=12.0),
-        route=RouteConfig(kind="rows", start_row=24, speed_mps=0.85, still_s=3.0),
+                          azimuth_deg=12.0, row_length_m=60.0),
+        route=RouteConfig(kind="rows", start_row=24, start_y_m=20.0, speed_mps=0.85, still_s=3.0),
         camera=CameraConfig(tilt_deg=19.0),
         lighting=LightingConfig(sun_elevation_deg=52.0, sun_azimuth_deg=330.0, cloud_cover=0.2, sun_irradiance=3.2),
     )
@@ -30,7 +31,7 @@ def _preset_01() -> SimConfig:
 def _preset_02() -> SimConfig:
     return SimConfig(
         name="rosario-like-02", duration_s=60.0, start_stamp_ns=1_512_736_400_000_000_000,
-        field=FieldConfig(plant_height_m=0.33, roughness_m=0.03, straw_cover=0.45, soil_moisture=0.55,
+        field=FieldConfig(plant_height_m=0.27, roughness_m=0.03, straw_cover=0.4, soil_moisture=0.55,
                           azimuth_deg=12.0, weeds_per_m2=1.0),
         route=RouteConfig(kind="loop", start_row=40, speed_mps=0.6, turn_speed_mps=0.4, still_s=3.0, leg_m=12.0,
                           stop_every_s=25.0, stop_s=3.0),
@@ -43,9 +44,10 @@ def _preset_02() -> SimConfig:
 def _preset_03() -> SimConfig:
     return SimConfig(
         name="rosario-like-03", duration_s=60.0, start_stamp_ns=1_513_340_200_000_000_000,
-        field=FieldConfig(plant_height_m=0.38, roughness_m=0.04, straw_cover=0.3, soil_moisture=0.25,
-                          azimuth_deg=12.0),
-        route=RouteConfig(kind="rows", start_row=60, speed_mps=1.1, turn_speed_mps=0.5, still_s=3.0),
+        field=FieldConfig(plant_height_m=0.34, roughness_m=0.04, straw_cover=0.3, soil_moisture=0.25,
+                          azimuth_deg=12.0, row_length_m=60.0),
+        route=RouteConfig(kind="rows", start_row=60, start_y_m=8.0, speed_mps=1.1, turn_speed_mps=0.5,
+                          still_s=3.0),
         camera=CameraConfig(tilt_deg=7.0),
         lighting=LightingConfig(sun_elevation_deg=21.0, sun_azimuth_deg=18.0, cloud_cover=0.15,
                                 sun_irradiance=3.6, glare=1.3),

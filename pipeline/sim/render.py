@@ -178,6 +178,17 @@ class StereoRender:
     mean_level: float
 
 
+# columns of the per-frame polygon attribute table (float32), gathered once per pixel
+_E1, _E2, _N, _ALB, _SIZE, _EXTRA, _GROUND, _RADIUS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13, \
+    14, 15
+
+
+def poly_table(polys: PolySet) -> np.ndarray:
+    """(N, 16) float32 attributes of a polygon set: e1, e2, normal, albedo, size, extra, ground height, radius."""
+    return np.concatenate([polys.e1, polys.e2, polys.normal, polys.albedo, polys.size[:, None],
+                           polys.extra[:, None], polys.ground[:, None], polys.radius[:, None]], 1).astype(np.float32)
+
+
 @lru_cache(maxsize=4)
 def _cached_soil(field_cfg: FieldConfig, seed: int) -> SoilTextures:
     return make_soil(field_cfg, seed)
@@ -328,6 +339,7 @@ class FieldRenderer:
         mid = 0.5 * (T_L[:3, 3] + T_R[:3, 3])
         fwd = T_L[:3, 2][:2]
         polys = self.select_polys(mid[:2], fwd)
+        polys.table = poly_table(polys)
         atlas = self.shadow_atlas(mid[:2], fwd)
         cam = self.cfg_cam
 
@@ -385,8 +397,10 @@ class FieldRenderer:
         flat_t = t.reshape(-1)
         flat_label = label.reshape(-1)
         fd = dirs.reshape(-1, 3)
-        # tree lines (rays near or above the horizon)
-        cand = np.flatnonzero(fd[:, 2] > -0.02 * np.sqrt(fd[:, 0] ** 2 + fd[:, 1] ** 2))
+        # tree lines: only rays that reach farther than the nearest possible tree (sky, or far ground)
+        r_min = self.tree_radii[0] - float(np.hypot(*(o[:2] - self.centre)))
+        reach = flat_t * np.sqrt(fd[:, 0] ** 2 + fd[:, 1] ** 2)
+        cand = np.flatnonzero(~(reach < r_min))  # inf (sky) and NaN-free rays beyond the circle
         trees = []
         for k, radius in enumerate(self.tree_radii):
             if not cand.size:
@@ -415,17 +429,21 @@ class FieldRenderer:
         poly_px = poly_k = np.zeros(0, np.int64)
         if has.size:
             k = pid[has]
-            nrm = polys.normal.astype(np.float32)[k]
-            num = np.einsum("ij,ij->i", polys.normal, polys.origin - o).astype(np.float32)[k]
-            den = nrm[:, 0] * fd[has, 0] + nrm[:, 1] * fd[has, 1] + nrm[:, 2] * fd[has, 2]
+            tab = polys.table
+            tab = poly_table(polys) if tab is None else tab
+            orel = (polys.origin - o).astype(np.float32)
+            num = np.einsum("ij,ij->i", tab[:, _N], orel)[k]
+            g = tab[k]
+            orel_k = orel[k]
+            dh = fd[has]
+            den = g[:, 6] * dh[:, 0] + g[:, 7] * dh[:, 1] + g[:, 8] * dh[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 tk = num / den
             ok = (tk > NEAR_M) & (tk < flat_t[has]) & (np.abs(den) > 1e-9)
             # the hit must lie on the polygon (within its radius plus a pixel): a ray through the edge of a
             # nearly edge-on polygon would otherwise meet its plane far from the polygon itself
-            rel = tk[:, None] * fd[has] - (polys.origin - o).astype(np.float32)[k]
-            reach = polys.radius.astype(np.float32)[k] + _F32(2.0 * bundle.pixel_angle) * np.abs(tk) * \
-                bundle.ray_norm.reshape(-1)[has]
+            rel = tk[:, None] * dh - orel_k
+            reach = g[:, _RADIUS] + _F32(2.0 * bundle.pixel_angle) * np.abs(tk) * bundle.ray_norm.reshape(-1)[has]
             ok &= np.einsum("ij,ij->i", rel, rel) <= reach * reach
             poly_px, poly_k = has[ok], k[ok]
             flat_t[poly_px] = tk[ok]
@@ -593,12 +611,14 @@ class FieldRenderer:
     def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
                      polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:
         """Radiance (N, 3) and glare radiance (N,) of polygon pixels with rays ``d`` and depths ``t``."""
+        tab = polys.table
+        g = (poly_table(polys) if tab is None else tab)[k]
         rel = (t[:, None] * d) - (polys.origin - o).astype(np.float32)[k]
-        e1 = polys.e1.astype(np.float32)[k]
-        e2 = polys.e2.astype(np.float32)[k]
+        e1 = g[:, _E1]
+        e2 = g[:, _E2]
         a = rel[:, 0] * e1[:, 0] + rel[:, 1] * e1[:, 1] + rel[:, 2] * e1[:, 2]
         b = rel[:, 0] * e2[:, 0] + rel[:, 1] * e2[:, 1] + rel[:, 2] * e2[:, 2]
-        n = polys.normal.astype(np.float32)[k]
+        n = g[:, _N].copy()
         ud = d / norm_d[:, None]
         ndv = n[:, 0] * ud[:, 0] + n[:, 1] * ud[:, 1] + n[:, 2] * ud[:, 2]
         n[ndv > 0] *= -1  # two-sided: the normal towards the viewer
@@ -611,18 +631,18 @@ class FieldRenderer:
         leaf = mat != MAT_CANOPY
         if leaf.any():
             li = np.flatnonzero(leaf)
-            kk = k[li]
-            size = polys.size.astype(np.float32)[kk]
+            gl = g[li]
+            size = gl[:, _SIZE]
             aa = a[li] / size
             bb = b[li] / size
             midrib = np.exp(-(bb / _F32(0.02)) ** 2)
             vein = np.maximum(np.cos(_F32(2 * np.pi / 0.14) * (aa - 1.5 * np.abs(bb))), 0) ** 10 * (np.abs(bb) < 0.28)
             soy = (mat[li] == MAT_LEAF).astype(np.float32)
-            ex = polys.extra[kk]
+            ex = gl[:, _EXTRA]
             lvl = int(np.clip(np.round(np.log2(max(float(np.median(fp[li])), 1e-6) / self.leaf_noise.texel_m)), 0, 6))
             tex = (1.0 + (_F32(0.22) * midrib + _F32(0.10) * vein) * soy) * \
                 sample_level(self.leaf_noise, a[li] + 7.1 * ex, b[li] + 3.3 * ex, lvl)
-            albl = polys.albedo[kk] * tex[:, None]
+            albl = gl[:, _ALB] * tex[:, None]
             # leaves are not flat: folded along the midrib and arched along it (shading normal only)
             fold = (_F32(0.6) + _F32(0.9) * ex) * np.clip(bb, -0.35, 0.35)
             arch = _F32(0.5) * (aa - _F32(0.5))
@@ -634,7 +654,7 @@ class FieldRenderer:
             pz = _F32(o[2]) + t[li] * d[li, 2]
             px = _F32(o[0]) + t[li] * d[li, 0]
             py = _F32(o[1]) + t[li] * d[li, 1]
-            hz = pz - polys.ground.astype(np.float32)[kk]
+            hz = pz - gl[:, _GROUND]
             hrel = np.clip(hz / _F32(max(self.cfg_field.plant_height_m, 0.05)), 0, 1.2)
             ao = _F32(0.45) + _F32(0.55) * hrel
             sh = self._shadow(atlas, px, py, pz, hz, 0.03)
@@ -653,7 +673,7 @@ class FieldRenderer:
             glare[li] = spec
         if (~leaf).any():
             ci = np.flatnonzero(~leaf)
-            var = polys.extra[k[ci]]
+            var = g[ci, _EXTRA]
             alb_t = self.foliage.sample(a[ci] + 13.7 * var, b[ci] + 5.1 * var, fp[ci])
             ao = 1.0 - _F32(0.35) * np.clip(b[ci] / _F32(0.35), 0, 1)
             irr = ao * _F32(0.8) + _F32(sun_e * 0.85) * np.maximum(ndl[ci], 0)

@@ -54,7 +54,7 @@ from pipeline.sim.workers import FrameJob, RenderService
 from pipeline.sim.sensors import rotation_enu_field, simulate_gps, simulate_odometry
 from pipeline.sim.trajectory import RobotTrajectory
 
-SIM_VERSION = 1
+SIM_VERSION = 2
 #: Phases (seconds after the first IMU sample) of the other streams' first samples.
 CAM_PHASE_S = 0.031
 GPS_PHASE_S = 0.113
@@ -198,7 +198,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
                       duration_s: float | None = None, compression: str | None = None, export_euroc: bool = False,
                       progress: bool = True, overwrite: bool = True, right_depth: bool = False,
                       rig: StereoRig | None = None, max_frames: int | None = None,
-                      workers: int = 1) -> SimulatedSequence:
+                      workers: int = 1, ae_warmup: int = 3) -> SimulatedSequence:
     """Simulate a sequence and write every output (see the module docstring).
 
     Args:
@@ -214,6 +214,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
         rig: the stereo calibration to render with (default: the shipped Rosario camchain).
         max_frames: stop rendering after this many stereo frames (other streams still cover the duration).
         workers: render frames in this many processes (results do not depend on it).
+        ae_warmup: renders of the first frame to settle the auto exposure before recording (≥ 1).
     Returns:
         The written sequence.
     """
@@ -272,7 +273,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     i_imu = i_gps = i_odom = 0
 
     def flush_until(w: RosarioBagWriter, stamp: int) -> None:
-        nonlocal i_imu, i_gps, i_odom
+        nonlocal i_imu
         n_new = int(np.searchsorted(imu_ns, stamp, side="right")) - i_imu
         if n_new > 0:
             chunk = imu.next(n_new)
@@ -305,10 +306,14 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
 
     # ---- render (possibly in worker processes) and stream everything into the bag in stamp order ----------------
     svc = RenderService(rig, cfg, world_seed, seed, workers=workers, right_depth=right_depth)
-    poses = [traj.pose_imu(float(tc)) for tc in t_cam]
+    poses = np.tile(np.eye(4), (len(t_cam), 1, 1))
+    for lo in range(0, len(t_cam), 4096):
+        kc = traj.kinematics(t_cam[lo:lo + 4096])
+        poses[lo:lo + len(kc.t), :3, :3] = kc.R_FI
+        poses[lo:lo + len(kc.t), :3, 3] = kc.p_I
     try:
         if len(t_cam):  # auto exposure converges on the first frame (the camera was running before recording)
-            for _ in range(3):
+            for _ in range(max(1, int(ae_warmup))):
                 fr, _ = svc.render_now(FrameJob(0, float(t_cam[0]), poses[0], ae.exposure))
                 ae.update(fr.mean_level, full=True)
         exposures = [ae.exposure] * min(2, len(t_cam))
@@ -353,10 +358,19 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
 
     # ---- ground truth -----------------------------------------------------------------------------------------------
     imu_all = np.concatenate(imu_rows) if imu_rows else np.zeros((0, 13))
-    kin = traj.kinematics(t_imu)
-    p_E = (kin.p_I - p_F0) @ R_EF.T
-    q_E = Rotation.from_matrix(R_EF[None] @ kin.R_FI).as_quat()
-    v_E = kin.v_I @ R_EF.T
+    p_E = np.zeros((len(t_imu), 3))
+    q_E = np.zeros((len(t_imu), 4))
+    v_E = np.zeros((len(t_imu), 3))
+    gyro_true = np.zeros((len(t_imu), 3))
+    accel_true = np.zeros((len(t_imu), 3))
+    for lo in range(0, len(t_imu), 8192):  # in chunks: memory does not grow with the duration
+        kin = traj.kinematics(t_imu[lo:lo + 8192])
+        sl = slice(lo, lo + len(kin.t))
+        p_E[sl] = (kin.p_I - p_F0) @ R_EF.T
+        q_E[sl] = Rotation.from_matrix(R_EF[None] @ kin.R_FI).as_quat()
+        v_E[sl] = kin.v_I @ R_EF.T
+        gyro_true[sl] = kin.gyro
+        accel_true[sl] = kin.specific_force
     header = (f"agrivio simulator {cfg.name} seed {seed}: IMU-frame pose (x up, y right, z forward) in ENU, origin "
               "at the true GPS antenna position of the first fix\ntimestamp[s] x y z qx qy qz qw")
     write_text_atomic(root / "gt_body.tum", tum_text(imu_ns / 1e9, p_E, q_E, header))
@@ -369,8 +383,8 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     write_text_atomic(root / "gt_antenna_true.tum", tum_text(gps_ns / 1e9, gps.true_enu, ident,
                                                             "true GPS antenna positions, ENU, same origin as "
                                                             "gt_body.tum\ntimestamp[s] x y z qx qy qz qw"))
-    truth = {"imu_stamp_ns": imu_ns, "p_E": p_E, "q_E_xyzw": q_E, "v_E": v_E, "gyro_true": kin.gyro,
-             "accel_true": kin.specific_force, "gyro_meas": imu_all[:, 1:4], "accel_meas": imu_all[:, 4:7],
+    truth = {"imu_stamp_ns": imu_ns, "p_E": p_E, "q_E_xyzw": q_E, "v_E": v_E, "gyro_true": gyro_true,
+             "accel_true": accel_true, "gyro_meas": imu_all[:, 1:4], "accel_meas": imu_all[:, 4:7],
              "bias_gyro": imu_all[:, 7:10], "bias_accel": imu_all[:, 10:13], "frame_stamp_ns": cam_ns,
              "T_E_rectleft": cam_poses_E, "R_E_F": R_EF, "p_F_origin": p_F0, "T_base_imu": T_BI,
              "antenna_base": antenna_B, "gps_stamp_ns": gps_ns, "gps_true_enu": gps.true_enu,

@@ -57,6 +57,7 @@ class PolySet:
         material: (N,) uint8 ``MAT_*``.
         extra: (N,) float32 per-polygon random value in [0, 1) (texture variation).
         ground: (N,) ground height under the polygon's plant or prism, metres (for canopy occlusion and shadows).
+        table: optional per-frame packed float32 attributes (``render.poly_table``), not carried by take/concat.
     """
 
     verts: np.ndarray
@@ -69,6 +70,7 @@ class PolySet:
     material: np.ndarray
     extra: np.ndarray
     ground: np.ndarray
+    table: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.verts.shape[0])
@@ -152,7 +154,7 @@ class Field:
         cache_blocks: how many row blocks of leaves to keep in memory.
     """
 
-    def __init__(self, cfg: FieldConfig, seed: int, terrain: Terrain, cache_blocks: int = 700) -> None:
+    def __init__(self, cfg: FieldConfig, seed: int, terrain: Terrain, cache_blocks: int = 240) -> None:
         self.cfg = cfg
         self.seed = int(seed)
         self.terrain = terrain
@@ -186,7 +188,7 @@ class Field:
     @staticmethod
     def canopy_half_width(height: np.ndarray) -> np.ndarray:
         """Half width (m) of the row canopy of a given height (young soybean: about as wide as tall)."""
-        return np.clip(0.55 * height + 0.05, 0.06, 0.3)
+        return np.clip(0.5 * height + 0.04, 0.06, 0.3)
 
     @property
     def row_extent(self) -> tuple[float, float, float, float]:
@@ -372,7 +374,7 @@ class Field:
         ok1, d1 = visible(self.row_x(ii1), cy1, 0.8)
         ok1 &= (d1 <= PRISM1_RANGE_M) & (cy1 <= cfg.row_length_m + SEG1_M)
         far1 = ok1 & (d1 >= PRISM0_RANGE_M) & ~self.cell_gap(ii1, qq1)
-        prisms = [self._prisms_coarse(ii1[far1], qq1[far1], cam_xy)]
+        prisms = [self._prisms_coarse(ii1[far1], qq1[far1])]
         near1 = ok1 & (d1 < PRISM0_RANGE_M)
         # level 0 (0.25 m) segments of near cells
         ii0 = np.repeat(ii1[near1], 4)
@@ -414,12 +416,11 @@ class Field:
                 hs.append(0.92 * plants.seg_hmax[segs])
         if xs:
             y0 = np.concatenate(y0s)
-            prisms.append(self._prism_faces(np.concatenate(xs), y0, y0 + SEG0_M, np.concatenate(hs), cam_xy,
-                                            caps=True))
+            prisms.append(self._prism_faces(np.concatenate(xs), y0, y0 + SEG0_M, np.concatenate(hs), caps=True))
         return PolySet.concat(leaves), PolySet.concat(prisms)
 
     def _prism_faces(self, xc: np.ndarray, y0: np.ndarray, y1: np.ndarray, height: np.ndarray,
-                     cam_xy: np.ndarray, caps: bool) -> PolySet:
+                     caps: bool) -> PolySet:
         """Faces (two roof quads, optional end triangles) of prisms along rows; back faces culled later."""
         n = xc.size
         if n == 0:
@@ -465,13 +466,13 @@ class Field:
                        np.tile(shade, (k, 1)).astype(np.float32), np.full(k * n, MAT_CANOPY, np.uint8),
                        np.tile(var, k).astype(np.float32), np.tile(zb + 0.03, k))
 
-    def _prisms_coarse(self, ii: np.ndarray, qq: np.ndarray, cam_xy: np.ndarray) -> PolySet:
+    def _prisms_coarse(self, ii: np.ndarray, qq: np.ndarray) -> PolySet:
         if not ii.size:
             return PolySet.empty(4)
         h = self.canopy_height() * 1.05 * self.row_factor(ii, qq // 4)
         y0 = qq * SEG1_M
         y1 = np.minimum(y0 + SEG1_M, self.cfg.row_length_m)
-        return self._prism_faces(self.row_x(ii), y0, y1, h, cam_xy, caps=False)
+        return self._prism_faces(self.row_x(ii), y0, y1, h, caps=False)
 
     # ---- shadows -------------------------------------------------------------------------------------------------
     def shadow_tile(self, tx: int, ty: int) -> np.ndarray:
@@ -511,6 +512,6 @@ class Field:
             for k in order[inside[order]]:
                 cv2.fillPoly(out, [pts[k]], float(ps.origin[k, 2]), cv2.LINE_8, 4)
         self._shadow[key] = out
-        if len(self._shadow) > 400:
+        if len(self._shadow) > 160:
             self._shadow.popitem(last=False)
         return out
