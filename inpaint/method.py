@@ -17,8 +17,9 @@ One fill round (repeated until no hole is left):
 4. The best block of each matching level is upsampled to level 0 (bilinear), shifted to the target's depth (mean
    over the target's known pixels) and fused: trained network (``fusion="net"``), softmax(α·q) mean (``"mean"``) or
    the best single block (``"best"``), with q = −min(Sim/energy, 10).
-5. The fused block is pasted into the hole pixels only; the filled pixels get the block's confidence C(p̂);
-   the pyramid, known masks and gradient features are updated where pixels changed.
+5. The fused block, clipped to the range of the known values (a filled depth is never nearer than the nearest or
+   farther than the farthest measured one), is pasted into the hole pixels only; the filled pixels get the
+   block's confidence C(p̂); the pyramid, known masks and gradient features are updated where pixels changed.
 
 Ablations (one option each): ``single_scale=True`` (level 0 only), ``gradient="sobel"`` (isotropic),
 ``fusion="best"`` / ``"mean"``.
@@ -27,8 +28,8 @@ Ablations (one option each): ``single_scale=True`` (level 0 only), ``gradient="s
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import cv2
@@ -188,6 +189,8 @@ class _Filler:
         mag = np.hypot(gx, gy)
         self.alpha = float(max(np.percentile(mag, 99) if mag.size else 0.0, 1e-3))
         self.rounds = 0
+        known_vals = depth[~hole]
+        self.value_range = (float(known_vals.min()), float(known_vals.max()))
         self.pool: ThreadPoolExecutor | None = None
 
     # ----------------------------------------------------------------------------------------- level data
@@ -325,6 +328,7 @@ class _Filler:
         if self.observer is not None:
             self.observer(centres, cands, target, known, q, valid)
         fill = fuse(self.o.fusion, cands, target, known, q, valid, self.o.alpha, self.o.weights)
+        np.clip(fill, self.value_range[0], self.value_range[1], out=fill)  # never beyond the measured range
         conf_blk = confidence_term(self.conf, centres, b)
         holes = ~known
         self.depth[ys[holes], xs[holes]] = fill[holes]

@@ -2,8 +2,9 @@
 
 Contract (all methods): ``depth`` is a float32 H×W map in metres, ``mask`` a bool H×W map (True = hole), ``guide``
 an optional H×W (grey) or H×W×3 (colour) image of the same size. Pixels outside the mask that are not finite
-(NaN/inf) cannot be used as data either; they are added to the hole so that the output is finite everywhere.
-Known pixels (finite, outside the mask) are never changed by any method.
+(NaN/inf) or not positive (0 is a common "no depth" code) cannot be used as data either; they are added to the
+hole so that the output is finite and positive everywhere. Known pixels (finite, positive, outside the mask) are
+never changed by any method.
 """
 
 from __future__ import annotations
@@ -45,9 +46,11 @@ def check_inputs(depth: object, mask: object, guide: object | None = None) -> Ch
     finite = np.isfinite(depth)
     if not finite.any():
         raise InpaintInputError("depth map is all NaN/inf: nothing to inpaint from")
-    hole = mask | ~finite
+    with np.errstate(invalid="ignore"):
+        usable = finite & (depth > 0)
+    hole = mask | ~usable
     if hole.all():
-        raise InpaintInputError("every pixel is a hole (mask all True or no finite known depth): "
+        raise InpaintInputError("every pixel is a hole (mask all True, or no finite positive depth outside it): "
                                 "nothing to inpaint from")
     clean = np.where(hole, np.float32(0.0), depth).astype(np.float32, copy=False)
     return CheckedInput(depth=clean, hole=hole, guide=_check_guide(guide, depth.shape))

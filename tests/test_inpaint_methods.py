@@ -111,3 +111,16 @@ def test_nan_outside_mask_is_filled_and_guide_is_validated():
     assert np.isfinite(out[5, 5])
     with pytest.raises(InpaintInputError, match="guide"):
         inpaint(d, m, guide=np.zeros((3, 3)), method="paper")
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_zero_depth_outside_the_mask_counts_as_a_hole(method):
+    d = _plane()
+    m = _disc_mask()
+    d0 = d.copy()
+    d0[3:6, 70:74] = 0.0  # "no depth" code, not in the mask
+    out = inpaint(d0, m, method=method, **FAST.get(method, {}))
+    assert (out[3:6, 70:74] > 1.0).all() and np.isfinite(out).all()
+    keep = ~m
+    keep[3:6, 70:74] = False
+    np.testing.assert_array_equal(out[keep], d0[keep])

@@ -17,8 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "train-fusion", help="train the inpainting fusion network (self-supervised, CPU)",
         description="Hide known depth with realistic masks, run the paper's fill, and train the fusion network "
                     "to reconstruct the hidden blocks. Writes fusion_net.pt and fusion_net.json.")
-    p.add_argument("--source", choices=("auto", "sim", "procedural"), default="auto",
-                   help="training depth: simulator frames or the procedural generator (default: sim if available)")
+    p.add_argument("--source", choices=("auto", "sim", "procedural"), default="procedural",
+                   help="training depth (default: procedural, which produced the shipped weights; a net trained on "
+                        "simulator frames drifted at inference, see inpaint/weights/fusion_net.json)")
     p.add_argument("--frames", type=int, default=20, help="number of ground-truth frames")
     p.add_argument("--masks-per-frame", type=int, default=2)
     p.add_argument("--epochs", type=int, default=40)
