@@ -24,12 +24,18 @@ from eval.statistics import GroupStats, summarize, variant_sort_key
 
 __all__ = ["Figure", "Report", "build_report", "rpe_series", "markdown_to_html"]
 
-METRIC_NOTE = (
-    "ATE = mean translational error after alignment, RMSE = root mean square of the same errors (metres), each "
-    "averaged over the successful runs (mean ± sample std). Δ = relative change of the mean, after vs before "
-    f"(negative = lower error after inpainting). Before = `{BEFORE}`, after = `{AFTER}` (the paper's method). "
-    "Significance: Welch's t-test on per-run RMSE (α = 0.05) and a seeded 95 % percentile-bootstrap CI of ΔRMSE. "
-    "Failed runs are counted in the run columns and excluded from the means.")
+def metric_note(after: str = AFTER) -> str:
+    """The note under Table 2; ``after`` is the inpainted variant compared (the paper's method by default)."""
+    which = "the paper's method" if after == AFTER else f"inpainting method `{after[len(AFTER) + 1:-1]}`"
+    return (
+        "ATE = mean translational error after alignment, RMSE = root mean square of the same errors (metres), each "
+        "averaged over the successful runs (mean ± sample std). Δ = relative change of the mean, after vs before "
+        f"(negative = lower error after inpainting). Before = `{BEFORE}`, after = `{after}` ({which}). "
+        "Significance: Welch's t-test on per-run RMSE (α = 0.05) and a seeded 95 % percentile-bootstrap CI of "
+        "ΔRMSE. Failed runs are counted in the run columns and excluded from the means.")
+
+
+METRIC_NOTE = metric_note()
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,7 @@ class Report:
     notes: tuple[str, ...] = ()
     code_versions: tuple[str, ...] = ()
     sections: tuple[tuple[str, str], ...] = field(default_factory=tuple)
+    after_variant: str = AFTER
 
     # ---- tables -------------------------------------------------------------------------------------------------
     def _tables(self) -> tuple[Table, Table]:
@@ -72,7 +79,7 @@ class Report:
         out += [f"Code version(s): {', '.join(f'`{v}`' for v in self.code_versions)}", ""] if self.code_versions else []
         out += ["## Before / after depth inpainting (paper Table 2 layout)", ""]
         out += [markdown_table(t2) if self.rows else "_No `depth-raw` / `depth-inpainted` runs found._\n", "",
-                METRIC_NOTE, ""]
+                metric_note(self.after_variant), ""]
         out += ["## All variants (five-run statistics)", "", markdown_table(tv), ""]
         for note in self.notes:
             out += [f"> {note}", ""]
@@ -97,7 +104,7 @@ class Report:
         parts.append("<h2>Before / after depth inpainting (paper Table 2 layout)</h2>")
         parts.append(_html_table(t2, failed_col=None) if self.rows else
                      "<p><em>No <code>depth-raw</code> / <code>depth-inpainted</code> runs found.</em></p>")
-        parts.append(f"<p class='note'>{_inline(METRIC_NOTE)}</p>")
+        parts.append(f"<p class='note'>{_inline(metric_note(self.after_variant))}</p>")
         parts.append("<h2>All variants (five-run statistics)</h2>")
         parts.append(_html_table(tv, failed_col=3))
         for note in self.notes:
@@ -253,7 +260,10 @@ def build_report(records: Sequence[RunRecord],
         notes: lines shown as call-outs (e.g. records that could not be read).
     """
     groups = summarize(records)
-    rows = compare_groups(groups)
+    # "After" is the paper's method when it ran; otherwise the one other inpainting method that ran (if any).
+    variants = sorted({g.variant for g in groups})
+    after = AFTER if AFTER in variants else next((v for v in variants if v.startswith(AFTER + "[")), AFTER)
+    rows = compare_groups(groups, after=after)
     evaluations = evaluations or {}
     figures: list[Figure] = []
     for seq in sorted({g.sequence for g in groups}):
@@ -278,4 +288,4 @@ def build_report(records: Sequence[RunRecord],
             figures.append(Figure(f"{_slug(seq)}_rpe", f"{seq}: RPE translation RMSE vs travelled distance (mean ± "
                                   f"std over runs)", plot_rpe_vs_distance(series, title=f"{seq}: RPE vs distance")))
     versions = tuple(sorted({r.code_version for r in records if r.code_version}))
-    return Report(title, groups, rows, figures, inpaint_bench_md, tuple(notes), versions, tuple(sections))
+    return Report(title, groups, rows, figures, inpaint_bench_md, tuple(notes), versions, tuple(sections), after)
