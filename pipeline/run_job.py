@@ -207,6 +207,9 @@ def run_job(job: Job) -> dict[str, Any]:
     if job.variant not in VARIANTS:
         raise AgrivioError(f"unknown variant {job.variant!r}; choose from {', '.join(VARIANTS)}")
     inputs = RunInputs.from_options(job.options)
+    import cv2
+
+    cv2.setNumThreads(1)  # one run = one core: runs are parallelised across processes, not inside OpenCV
     out = Path(job.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
