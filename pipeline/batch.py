@@ -16,7 +16,7 @@ import os
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from pipeline.atomic import write_json_atomic
 from pipeline.errors import AgrivioError
+from pipeline.process_pool import spawn_pool
 
 RECORD_NAME = "record.json"
 EXECUTORS = ("local", "serial", "ray")
@@ -161,7 +162,7 @@ def _run_process_pool(pending: list[Job], run_fn: RunFn, workers: int, bar: tqdm
 def _pool_pass(jobs: list[Job], run_fn: RunFn, workers: int, bar: tqdm) -> list[Job]:
     """Run ``jobs`` on one pool; return those whose futures failed because the pool broke."""
     broken: list[Job] = []
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+    with spawn_pool(min(workers, len(jobs))) as pool:
         futures: dict[Future, Job] = {pool.submit(run_isolated, run_fn, job): job for job in jobs}
         for fut in as_completed(futures):
             job = futures[fut]

@@ -12,7 +12,6 @@ import itertools
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from inpaint import METHODS, inpaint
 from pipeline.depth import DepthFrame, DepthParams
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
+from pipeline.process_pool import spawn_pool
 
 #: Bump when the stage changes its outputs (invalidates inpainted caches).
 INPAINT_STAGE_VERSION = 1
@@ -94,7 +94,7 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
     n_workers = max(1, workers or os.cpu_count() or 1)
     raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root)
     n = 0
-    pool = ProcessPoolExecutor(max_workers=n_workers) if n_workers > 1 else None
+    pool = spawn_pool(n_workers) if n_workers > 1 else None
     try:
         with tqdm(desc=f"inpaint ({params.method})", unit="frame", disable=not progress, leave=False) as bar:
             while True:

@@ -7,7 +7,6 @@ caches are deterministic, so the images do not depend on how many workers render
 
 from __future__ import annotations
 
-import multiprocessing as mp
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
@@ -16,6 +15,7 @@ import numpy as np
 
 from msckf.camera import StereoRig
 from pipeline.sim.config import SimConfig
+from pipeline.process_pool import spawn_pool
 from pipeline.sim.render import FieldRenderer, StereoRender
 
 NOISE_BANK = 1 << 20
@@ -61,9 +61,6 @@ _WORKER: FrameRenderer | None = None
 
 
 def _init(rig: StereoRig, cfg: SimConfig, world_seed: int, seed: int, right_depth: bool) -> None:
-    import cv2
-
-    cv2.setNumThreads(1)
     global _WORKER
     _WORKER = FrameRenderer(rig, cfg, world_seed, seed, threads=1)
     _WORKER.right_depth = right_depth
@@ -89,8 +86,7 @@ class RenderService:
         self._pool: ProcessPoolExecutor | None = None
         self._inline: FrameRenderer | None = None
         if self.workers > 1:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_init,
-                                             initargs=(rig, cfg, world_seed, seed, right_depth))
+            self._pool = spawn_pool(self.workers, initializer=_init, initargs=(rig, cfg, world_seed, seed, right_depth))
         else:
             self._inline = FrameRenderer(rig, cfg, world_seed, seed, threads=1)
             self._inline.right_depth = right_depth
