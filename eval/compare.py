@@ -105,12 +105,17 @@ def compare_groups(groups: Sequence[GroupStats], before: str = BEFORE, after: st
 
 
 def fmt_pm(s: MetricSummary | None, digits: int = 3) -> str:
-    """``mean ± std`` (``mean`` alone for one run, ``–`` for none)."""
+    """``mean ± std`` (``mean`` alone for one run, ``–`` for none).
+
+    The mean has ``digits`` decimals; the std has at least two significant digits (up to 6 decimals), so that a
+    spread of a few tenths of a millimetre over five runs does not print as ``± 0.000``.
+    """
     if s is None or s.n == 0:
         return "–"
     if s.n == 1 or not math.isfinite(s.std):
         return f"{s.mean:.{digits}f}"
-    return f"{s.mean:.{digits}f} ± {s.std:.{digits}f}"
+    std_digits = digits if s.std <= 0 else min(6, max(digits, 1 - math.floor(math.log10(s.std))))
+    return f"{s.mean:.{digits}f} ± {s.std:.{std_digits}f}"
 
 
 def _pct(x: float | None) -> str:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.compare import compare_groups, table2_markdown, variants_markdown
+from eval.compare import compare_groups, fmt_pm, table2_markdown, variants_markdown
 from eval.errors import EvalInputError
 from eval.records import RunRecord, config_hash
 from eval.report import build_report, markdown_to_html
@@ -226,3 +226,11 @@ def test_report_renders_in_headless_chromium(runs_dir: Path, tmp_path) -> None:
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert shot.read_bytes().startswith(b"\x89PNG") and shot.stat().st_size > 20_000
+
+
+def test_mean_std_keeps_two_significant_digits_of_a_small_spread():
+    tight = MetricSummary.of([0.0290, 0.0292, 0.0289, 0.0291, 0.0290])
+    assert fmt_pm(tight) == "0.029 ± 0.00011"  # std 1.14e-4 m: not "± 0.000"
+    assert fmt_pm(MetricSummary.of([0.60, 0.65, 0.63])) == "0.627 ± 0.025"
+    assert fmt_pm(MetricSummary.of([0.5, 0.5])) == "0.500 ± 0.000"
+    assert fmt_pm(MetricSummary.of([0.4])) == "0.400"
