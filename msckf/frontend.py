@@ -209,6 +209,24 @@ class _TrackerBase:
         guess[bad] = tr.px0[bad]
         return self._klt(self._prev_image, image, tr.px0, guess, self.config.pyramid_levels)
 
+    def _track_previous(self, image: np.ndarray, stamp_s: float
+                        ) -> tuple[_Tracks, _Tracks, tuple[np.ndarray, np.ndarray] | None]:
+        """The temporal step both front ends share: the previous tracks followed into ``image`` (raw left).
+
+        Returns:
+            ``(tracks, prev, rotations)``: the tracks found again (new ``px0``/``xy0``; ``px1``/``xy1`` still the
+            previous frame's), the same tracks as they were in the previous frame, and ``(R_c0_p, R_c1_p)`` (previous
+            → current cam0/cam1 rotations from the gyro). On the first frame or with no tracks: two empty track sets
+            and None.
+        """
+        if self._prev_image is None or not len(self._tracks):
+            return _Tracks.empty(), _Tracks.empty(), None
+        rotations = self._inter_frame_rotations(stamp_s)
+        px0, ok = self._track_temporal(image, rotations[0])
+        prev = self._tracks.select(ok)
+        tracks = _Tracks(prev.ids, px0[ok], self.rig.left.undistort_points(px0[ok]), prev.px1, prev.xy1, prev.life)
+        return tracks, prev, rotations
+
     def _ransac(self, xy_prev: np.ndarray, xy_curr: np.ndarray, R_c_p: np.ndarray, focal: float) -> np.ndarray:
         c = self.config
         return two_point_ransac(xy_prev, xy_curr, R_c_p, focal, c.ransac_threshold, self._rng,
@@ -383,14 +401,9 @@ class StereoFrontend(_TrackerBase):
         timings: dict[str, float] = {}
         counts: dict[str, int] = {"prev": len(self._tracks)}
         t = time.perf_counter()
-        tracks = _Tracks.empty()
-        if self._prev_image is not None and len(self._tracks):
-            R_c0_p, R_c1_p = self._inter_frame_rotations(stamp_s)
-            prev = self._tracks
-            px0, ok = self._track_temporal(left_grey, R_c0_p)
-            prev = prev.select(ok)
-            tracks = _Tracks(prev.ids, px0[ok], self.rig.left.undistort_points(px0[ok]),
-                             prev.px1, prev.xy1, prev.life)  # px1/xy1 still the previous frame's
+        tracks, prev, rotations = self._track_previous(left_grey, stamp_s)
+        if rotations is not None:
+            R_c0_p, R_c1_p = rotations
             counts["tracked"] = len(tracks)
             t = _lap(timings, "track", t)
             px1, xy1, ok = self._stereo_match(left_grey, right_grey, tracks, prev.px0, prev.px1)
@@ -469,17 +482,11 @@ class DepthFrontend(_TrackerBase):
         timings: dict[str, float] = {}
         counts: dict[str, int] = {"prev": len(self._tracks)}
         t = time.perf_counter()
-        tracks = _Tracks.empty()
-        if self._prev_image is not None and len(self._tracks):
-            R_c0_p, _ = self._inter_frame_rotations(stamp_s)
-            prev = self._tracks
-            px0, ok = self._track_temporal(left_grey, R_c0_p)
-            prev = prev.select(ok)
-            tracks = _Tracks(prev.ids, px0[ok], self.rig.left.undistort_points(px0[ok]), prev.px1, prev.xy1,
-                             prev.life)
+        tracks, prev, rotations = self._track_previous(left_grey, stamp_s)
+        if rotations is not None:
             counts["tracked"] = len(tracks)
             t = _lap(timings, "track", t)
-            inl = self._ransac(prev.xy0, tracks.xy0, R_c0_p, self._focal0)
+            inl = self._ransac(prev.xy0, tracks.xy0, rotations[0], self._focal0)
             tracks = _Tracks(tracks.ids, tracks.px0, tracks.xy0, tracks.px1, tracks.xy1, tracks.life + 1)
             tracks = tracks.select(inl)
             counts["ransac_ok"] = len(tracks)
