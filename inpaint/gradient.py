@@ -235,28 +235,6 @@ class FeatureJob:
     gvec_out: np.ndarray | None = None
 
 
-def merge_rects(rects: list[Rect]) -> list[Rect]:
-    """Merge overlapping rects into their bounding box when the box is no larger than the two areas together."""
-    out = [tuple(r) for r in rects]
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(out)):
-            for j in range(i + 1, len(out)):
-                a, b = out[i], out[j]
-                if a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]:
-                    box = (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
-                    if (box[1] - box[0]) * (box[3] - box[2]) <= (a[1] - a[0]) * (a[3] - a[2]) + \
-                            (b[1] - b[0]) * (b[3] - b[2]):
-                        out[i] = box
-                        del out[j]
-                        changed = True
-                        break
-            if changed:
-                break
-    return out  # type: ignore[return-value]
-
-
 def run_feature_jobs(jobs: list[FeatureJob], kind: str = "anisotropic") -> None:
     """Execute feature updates of several images in one filter pass.
 
