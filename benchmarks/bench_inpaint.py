@@ -11,7 +11,6 @@ controlled: compare ratios, not absolute times, across runs.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -25,6 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from inpaint import inpaint  # noqa: E402
 from inpaint.masks import random_mask  # noqa: E402
 from inpaint.synthetic import field_depth  # noqa: E402
+from pipeline.atomic import write_json_atomic  # noqa: E402
+from pipeline.paths import cache_dir  # noqa: E402
 
 ALL = ("paper", "ebm", "biharmonic", "telea", "ns", "ipbasic")
 
@@ -35,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--methods", default=",".join(ALL))
     ap.add_argument("--paper-options", default="", help="extra options for paper, e.g. fusion=mean")
-    ap.add_argument("--out", type=Path, default=Path("data/cache/bench_inpaint.json"))
+    ap.add_argument("--out", type=Path, default=cache_dir() / "benchmarks" / "bench_inpaint.json")
     args = ap.parse_args(argv)
     methods = args.methods.split(",")
     paper_opts = dict(kv.split("=") for kv in args.paper_options.split(",") if kv)
@@ -64,8 +65,7 @@ def main(argv: list[str] | None = None) -> int:
            "runs": times, "frames": args.frames, "repeats": args.repeats, "hole_ratios": list(ratios),
            "size": [376, 672], "paper_options": paper_opts, "cpu_count": os.cpu_count(),
            "platform": platform.platform(), "load_avg": os.getloadavg()}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=2) + "\n")
+    write_json_atomic(args.out, out)
     print(f"written: {args.out}")
     return 0
 
