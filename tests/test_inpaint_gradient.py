@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from inpaint.gradient import (gradient_channels, gradient_channels_in_rects, gradient_field, template_radius,
-                              templates)
+from inpaint.gradient import (FeatureJob, gradient_channels, gradient_channels_in_rects, gradient_field,
+                              run_feature_jobs, template_radius, templates, vector_from_channels)
 
 H, W = 48, 64
 
@@ -78,3 +78,26 @@ def test_tiled_update_equals_full_computation(kind):
     gradient_channels_in_rects(img, known, rects, out, kind)
     for y0, y1, x0, x1 in rects:
         np.testing.assert_array_equal(out[y0:y1, x0:x1], full[y0:y1, x0:x1])
+
+
+@pytest.mark.parametrize("kind", ["anisotropic", "sobel"])
+def test_batched_update_of_many_rects_and_images_equals_full_computation(kind):
+    """Rects of every size (narrow ones stacked, wide ones alone, some at the borders) of two images of different
+    shapes in one pass: features and gradient vectors equal the whole-image computation."""
+    rng = np.random.default_rng(11)
+    imgs = [rng.standard_normal(shape).astype(np.float32) for shape in ((70, 120), (40, 50))]
+    knowns = [rng.random(im.shape) > 0.3 for im in imgs]
+    rect_sets = [[(0, 9, 0, 11), (5, 20, 100, 120), (30, 41, 2, 112), (60, 70, 50, 61), (44, 47, 70, 79),
+                  (10, 30, 30, 40)],
+                 [(0, 40, 0, 6), (12, 23, 20, 31), (35, 40, 44, 50)]]
+    jobs, fulls = [], []
+    for im, kn, rects in zip(imgs, knowns, rect_sets):
+        full = gradient_channels(im, kn, kind)
+        fulls.append((full, *vector_from_channels(full, kind)))
+        jobs.append(FeatureJob(im, kn, rects, np.zeros_like(full), np.zeros(im.shape + (2,), np.float32)))
+    run_feature_jobs(jobs, kind)
+    for job, (full, gx, gy), rects in zip(jobs, fulls, rect_sets):
+        for y0, y1, x0, x1 in rects:
+            np.testing.assert_array_equal(job.out[y0:y1, x0:x1], full[y0:y1, x0:x1])
+            np.testing.assert_array_equal(job.gvec_out[y0:y1, x0:x1, 0], gy[y0:y1, x0:x1])
+            np.testing.assert_array_equal(job.gvec_out[y0:y1, x0:x1, 1], gx[y0:y1, x0:x1])
