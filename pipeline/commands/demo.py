@@ -8,7 +8,8 @@
 4. benchmarks the inpainting methods, the paper's included, on simulated frames with exact depth (Table 1);
 5. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
 
-The default sizes finish in about 15 minutes on a 2-core machine; ``--full`` simulates 60 s sequences.
+The default sizes finish in about 11 minutes on a 2-core machine (measured 10.7 min from a fresh clone, within the
+15-minute budget); ``--full`` simulates 60 s sequences.
 """
 
 from __future__ import annotations
@@ -26,8 +27,8 @@ from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
 PRESETS = ("rosario-like-01", "rosario-like-02", "rosario-like-03")
 #: The VIO comparison's inpainting method in the default demo. The paper's method costs ≈6 s per 672×376 frame
-#: with ~50 % SGBM holes on this 2-core CPU (measured; 450 frames ≈ 22 min on two cores), which cannot fit the
-#: demo's 15-minute budget, so the default demo fills depth with OpenCV Telea (≈0.1 s) for the VIO runs and
+#: with ~50 % SGBM holes on this 2-core CPU (measured; two frames in parallel take ≈9–10 s, so the 450 demo frames
+#: take ≈40 min on two cores), which cannot fit the demo's 15-minute budget, so the default demo fills depth with OpenCV Telea (≈0.1 s) for the VIO runs and
 #: measures the paper's method in the inpainting benchmark (Table 1). ``--inpaint paper`` (or ``--full``) runs
 #: the paper's method in the VIO comparison too.
 DEFAULT_DEMO_INPAINT = "telea"
