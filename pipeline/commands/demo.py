@@ -29,8 +29,8 @@ PRESETS = ("rosario-like-01", "rosario-like-02", "rosario-like-03")
 #: The VIO comparison's inpainting method in the default demo. The paper's method costs ≈6 s per 672×376 frame
 #: with ~50 % SGBM holes on this 2-core CPU (measured; two frames in parallel take ≈9–10 s, so the 450 demo frames
 #: take ≈40 min on two cores), which cannot fit the demo's 15-minute budget, so the default demo fills depth with
-#: OpenCV Telea (≈0.1 s) for the VIO runs and measures the paper's method in the inpainting benchmark (Table 1). ``--inpaint paper`` (or ``--full``) runs
-#: the paper's method in the VIO comparison too.
+#: OpenCV Telea (≈0.1 s) for the VIO runs and measures the paper's method in the inpainting benchmark (Table 1).
+#: ``--inpaint paper`` (or ``--full``) runs the paper's method in the VIO comparison too.
 DEFAULT_DEMO_INPAINT = "telea"
 DEFAULT_DURATION_S = 10.0
 FULL_DURATION_S = 60.0
