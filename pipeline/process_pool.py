@@ -15,15 +15,12 @@ from typing import Any, Callable
 
 
 def _single_threaded(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
+    # BLAS and torch (OpenMP) threads are already 1: ``pipeline/__init__`` sets OPENBLAS/OMP/MKL_NUM_THREADS (unless
+    # the user did) and spawned workers inherit the environment. Importing torch here would only cost every worker
+    # ≈1.7 s, also those that never use it.
     import cv2
 
     cv2.setNumThreads(1)
-    try:
-        import torch
-    except ImportError:  # pragma: no cover — torch is a core dependency
-        pass
-    else:
-        torch.set_num_threads(1)
     if initializer is not None:
         initializer(*initargs)
 
