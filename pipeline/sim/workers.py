@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from msckf.camera import StereoRig
-from pipeline.sim.config import SimConfig
 from pipeline.process_pool import spawn_pool
+from pipeline.sim.config import SimConfig
 from pipeline.sim.render import FieldRenderer, StereoRender
 
 NOISE_BANK = 1 << 20
@@ -86,7 +86,8 @@ class RenderService:
         self._pool: ProcessPoolExecutor | None = None
         self._inline: FrameRenderer | None = None
         if self.workers > 1:
-            self._pool = spawn_pool(self.workers, initializer=_init, initargs=(rig, cfg, world_seed, seed, right_depth))
+            self._pool = spawn_pool(self.workers, initializer=_init,
+                                    initargs=(rig, cfg, world_seed, seed, right_depth))
         else:
             self._inline = FrameRenderer(rig, cfg, world_seed, seed, threads=1)
             self._inline.right_depth = right_depth
