@@ -1,4 +1,5 @@
-"""Procedural noise, periodic image helpers and mip-mapped texture sampling (vectorised with numpy/OpenCV).
+"""Procedural noise, periodic image helpers and mip-mapped texture sampling (numpy/OpenCV; sampling kernel in
+:mod:`pipeline.sim.texture_kernels`).
 
 All textures here tile: their left/right and top/bottom edges continue each other, so a texture addressed with
 world coordinates modulo its period shows no seams.
@@ -10,6 +11,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from pipeline.sim.texture_kernels import mip_sample, pack_levels
 
 
 def periodic_blur(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -110,7 +113,7 @@ def periodic_pyramid(img: np.ndarray, min_size: int = 4) -> list[np.ndarray]:
 
 @dataclass
 class MipTexture:
-    """A tileable texture addressed in metres, sampled with trilinear mip-mapping.
+    """A tileable texture addressed in metres, sampled with trilinear mip-mapping (compiled kernel).
 
     Attributes:
         levels: mip pyramid, level 0 full resolution (H, W[, C]) float32.
@@ -119,6 +122,10 @@ class MipTexture:
 
     levels: list[np.ndarray]
     texel_m: float
+
+    def __post_init__(self) -> None:
+        self._flat, self._info = pack_levels(self.levels)
+        self._channels = int(np.prod(self.levels[0].shape[2:], dtype=np.int64))
 
     @classmethod
     def from_image(cls, img: np.ndarray, texel_m: float) -> "MipTexture":
@@ -130,6 +137,30 @@ class MipTexture:
         h, w = self.levels[0].shape[:2]
         return w * self.texel_m, h * self.texel_m
 
+    def sample_lod(self, x_m: np.ndarray, y_m: np.ndarray, lod: np.ndarray | float,
+                   valid: np.ndarray | None = None, max_level: int | None = None, beyond: float = 1.0
+                   ) -> np.ndarray:
+        """Trilinear samples at surface points for a given level of detail.
+
+        Args:
+            x_m, y_m: surface coordinates in metres, any same shape S (x → texture columns, y → rows).
+            lod: (S) or scalar log2(footprint / level-0 texel); fractional levels blend two mip levels.
+            valid: (S) bool points that need a value (others are zero); None = all.
+            max_level: points needing this level or coarser get the constant ``beyond`` (a detail texture that
+                has averaged out to its mean there).
+        Returns:
+            (S) or (S + (C,)) float32.
+        """
+        shape = np.shape(x_m)
+        x = np.ascontiguousarray(x_m, np.float64).reshape(-1)
+        y = np.ascontiguousarray(y_m, np.float64).reshape(-1)
+        lv = np.ascontiguousarray(np.broadcast_to(np.asarray(lod, np.float32), shape)).reshape(-1)
+        ok = np.ones(x.size, bool) if valid is None else np.ascontiguousarray(valid, bool).reshape(-1)
+        out = np.zeros((x.size, self._channels), np.float32)
+        mip_sample(self._flat, self._info, x, y, lv, ok, 1.0 / self.texel_m,
+                   len(self.levels) if max_level is None else int(max_level), float(beyond), out)
+        return out.reshape(shape + self.levels[0].shape[2:])
+
     def sample(self, x_m: np.ndarray, y_m: np.ndarray, footprint_m: np.ndarray | float) -> np.ndarray:
         """Sample at world coordinates with a per-point footprint (the size of a pixel on the surface).
 
@@ -139,37 +170,13 @@ class MipTexture:
         Returns:
             (N,) or (N, C) float32.
         """
-        n = x_m.size
-        h, w = self.levels[0].shape[:2]
-        # wrap in float64 first so float32 keeps sub-texel precision far from the origin
-        u = np.mod(np.asarray(x_m, np.float64) / self.texel_m, w)
-        v = np.mod(np.asarray(y_m, np.float64) / self.texel_m, h)
-        fp = np.broadcast_to(np.asarray(footprint_m, np.float64), (n,))
-        lod = np.clip(np.log2(np.maximum(fp / self.texel_m, 1e-6)), 0.0, len(self.levels) - 1.0)
-        base = np.minimum(np.floor(lod).astype(np.int32), len(self.levels) - 2) if len(self.levels) > 1 else \
-            np.zeros(n, np.int32)
-        frac = (lod - base).astype(np.float32)
-        out = np.empty((n,) + self.levels[0].shape[2:], np.float32)
-        for lvl in np.unique(base):
-            idx = np.flatnonzero(base == lvl)
-            s0 = 0.5 ** lvl  # texel i of level l covers [i, i+1) · texel_m · 2^l: its centre is at u·s − 0.5
-            a = remap_points(self.levels[lvl], u[idx] * s0 - 0.5, v[idx] * s0 - 0.5)
-            if lvl + 1 < len(self.levels):
-                s1 = 0.5 ** (lvl + 1)
-                b = remap_points(self.levels[lvl + 1], u[idx] * s1 - 0.5, v[idx] * s1 - 0.5)
-                f = frac[idx] if a.ndim == 1 else frac[idx, None]
-                a = a + (b - a) * f
-            out[idx] = a
-        return out
+        fp = np.maximum(np.asarray(footprint_m, np.float64) / self.texel_m, 1e-6)
+        return self.sample_lod(x_m, y_m, np.log2(fp))
 
 
-def sample_rows(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, lod: np.ndarray, valid: np.ndarray,
-                lod_offset: float = 0.0, max_level: int | None = None, beyond: float = 1.0) -> np.ndarray:
-    """Trilinear mip sampling of a whole image of surface points, choosing the mip level per image row.
-
-    The level of a row is the smallest (sharpest) level needed by its valid pixels; pixels whose own level is
-    higher are blended towards the next level by their fractional excess. Rows of the same level are sampled
-    with one ``cv2.remap`` call per level (no gathers), which is what makes ground texturing fast.
+def sample_image(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, lod: np.ndarray, valid: np.ndarray,
+                 lod_offset: float = 0.0, max_level: int | None = None, beyond: float = 1.0) -> np.ndarray:
+    """Trilinear mip sampling of a whole image of surface points (per-pixel level of detail).
 
     Args:
         tex: the texture.
@@ -177,61 +184,14 @@ def sample_rows(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, lod: np.ndarr
         lod: (H, W) float32 level of detail for a texel of ``tex.texel_m`` (log2 of footprint / texel).
         valid: (H, W) bool pixels that need a value.
         lod_offset: added to ``lod`` (for textures sharing a footprint but with another texel size).
-        max_level: rows needing this level or coarser get the constant ``beyond`` (a detail texture that has
-            averaged out to its mean there).
+        max_level: pixels needing this level or coarser get the constant ``beyond``.
     Returns:
-        (H, W[, C]) float32 samples (undefined where not valid).
+        (H, W[, C]) float32 samples (zero where not valid).
     """
-    h, w = x_m.shape
-    nlev = len(tex.levels)
-    lod = np.clip(lod + np.float32(lod_offset), 0.0, nlev - 1.0)
-    row_lod = np.where(valid, lod, np.float32(1e9)).min(axis=1)
-    row_lvl = np.clip(np.floor(np.where(row_lod > 1e8, 0, row_lod)), 0, max(nlev - 2, 0)).astype(np.int32)
-    # few bands: a row never gets a coarser level than any row below it (distance grows up the image)
-    row_lvl = np.minimum.accumulate(row_lvl[::-1])[::-1]
-    th, tw = tex.levels[0].shape[:2]
-    pu = tw * tex.texel_m
-    pv = th * tex.texel_m
-    u0 = (np.mod(x_m, np.float32(pu)) / np.float32(tex.texel_m)).astype(np.float32)
-    v0 = (np.mod(y_m, np.float32(pv)) / np.float32(tex.texel_m)).astype(np.float32)
-    out = np.zeros((h, w) + tex.levels[0].shape[2:], np.float32)
-    rows_any = valid.any(axis=1)
-    if max_level is not None:
-        coarse = row_lvl >= max_level
-        out[coarse] = beyond
-        rows_any = rows_any & ~coarse
-    start = 0
-    while start < h:
-        lvl = row_lvl[start]
-        stop = start + 1
-        while stop < h and row_lvl[stop] == lvl:
-            stop += 1
-        if rows_any[start:stop].any():
-            sl = slice(start, stop)
-            s0 = np.float32(0.5 ** lvl)
-            a = cv2.remap(tex.levels[lvl], u0[sl] * s0 - 0.5, v0[sl] * s0 - 0.5, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_WRAP)
-            if lvl + 1 < nlev:
-                frac = np.clip(lod[sl] - lvl, 0.0, 1.0)
-                if frac.max() > 0.02:
-                    s1 = np.float32(0.5 ** (lvl + 1))
-                    b = cv2.remap(tex.levels[lvl + 1], u0[sl] * s1 - 0.5, v0[sl] * s1 - 0.5, cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_WRAP)
-                    if a.ndim == 3:
-                        frac = frac[..., None]
-                    a = a + (b - a) * frac
-            out[sl] = a
-        start = stop
-    return out
+    return tex.sample_lod(x_m, y_m, lod + np.float32(lod_offset), valid, max_level, beyond)
 
 
 def sample_level(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, level: int) -> np.ndarray:
     """Bilinear sampling of one mip level at surface coordinates (metres): 1-D arrays or 2-D images."""
     lvl = int(np.clip(level, 0, len(tex.levels) - 1))
-    th, tw = tex.levels[lvl].shape[:2]
-    texel = tex.texel_m * 2 ** lvl
-    u = (np.mod(x_m, np.float32(tw * texel)) / np.float32(texel) - 0.5).astype(np.float32)
-    v = (np.mod(y_m, np.float32(th * texel)) / np.float32(texel) - 0.5).astype(np.float32)
-    if u.ndim == 2 and max(u.shape) < 32000:
-        return cv2.remap(tex.levels[lvl], u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-    return remap_points(tex.levels[lvl], u, v)
+    return tex.sample_lod(x_m, y_m, float(lvl))

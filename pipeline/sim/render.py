@@ -32,8 +32,9 @@ import numpy as np
 from msckf.camera import PinholeRadtan, StereoRig
 from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RenderConfig
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
-from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, sample_rows, smooth_noise_1d
+from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_image, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
+from pipeline.sim.trace_kernels import raster_polygons, trace_surfaces
 from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
 from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
                                 Field, PolySet)
@@ -239,12 +240,13 @@ class FieldRenderer:
         self.left = make_view("left", rig.left, rig.R_left, rig.P_left, render.margin_px, camera.vignetting)
         self.right = make_view("right", rig.right, rig.R_right, rig.P_right, render.margin_px, camera.vignetting)
         n = 8192
-        self.tree_profiles = []
+        tree_profiles = []
         for base, amp, gap in ((11.0, 5.0, -0.9), (9.0, 4.0, -1.6)):
             lo = smooth_noise_1d(rng, n, 40.0)
             hgt = base + amp * lo + 1.6 * smooth_noise_1d(rng, n, 6.0) + 0.6 * smooth_noise_1d(rng, n, 1.2)
             hgt[lo < gap] = 0.0
-            self.tree_profiles.append(np.maximum(hgt, 0.0).astype(np.float32))
+            tree_profiles.append(np.maximum(hgt, 0.0).astype(np.float32))
+        self.tree_profiles = np.stack(tree_profiles)  # (2, n) tree-top heights along each tree line, m
         self.centre = np.array(centre)
         self.tree_radii = (render.treeline_radius_m, render.treeline_radius_m * 3.2)
         self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(1) if threads > 1 else None
@@ -381,74 +383,29 @@ class FieldRenderer:
         o = np.asarray(T_F_rect[:3, 3], np.float64)
         dirs = cv2.transform(bundle.rays, R.astype(np.float32))  # (H, W, 3), rectified z = 1
         H, W = dirs.shape[:2]
-        dx, dy, dz = dirs[..., 0], dirs[..., 1], dirs[..., 2]
         t, _, hgx, hgy = self.terrain.intersect(o, dirs, T_MAX_M, ref_xy=ref_xy)
-        label = np.where(np.isfinite(t), LABEL_SOIL, LABEL_SKY).astype(np.uint8)
-        # far canopy plane
-        hc = _F32(self.field.canopy_height())
         x0, x1, y0, y1 = self.field.row_extent
-        tc = (hc - _F32(o[2])) / np.where(dz < 0, dz, _F32(-1e-9))
-        pcx = _F32(o[0]) + tc * dx
-        pcy = _F32(o[1]) + tc * dy
-        canopy = (dz < 0) & (tc < t) & (pcx > x0) & (pcx < x1) & (pcy > y0) & (pcy < y1) & \
-            ((pcx - _F32(o[0])) ** 2 + (pcy - _F32(o[1])) ** 2 >= _F32(PRISM1_RANGE_M ** 2))
-        t = np.where(canopy, tc, t).astype(np.float32)
-        label[canopy] = LABEL_CANOPY
-        flat_t = t.reshape(-1)
-        flat_label = label.reshape(-1)
-        fd = dirs.reshape(-1, 3)
-        # tree lines: only rays that reach farther than the nearest possible tree (sky, or far ground)
-        r_min = self.tree_radii[0] - float(np.hypot(*(o[:2] - self.centre)))
-        reach = flat_t * np.sqrt(fd[:, 0] ** 2 + fd[:, 1] ** 2)
-        cand = np.flatnonzero(~(reach < r_min))  # inf (sky) and NaN-free rays beyond the circle
-        trees = []
-        for k, radius in enumerate(self.tree_radii):
-            if not cand.size:
-                break
-            d = fd[cand].astype(np.float64)
-            oc = o[:2] - self.centre
-            a = d[:, 0] ** 2 + d[:, 1] ** 2
-            bq = 2 * (d[:, 0] * oc[0] + d[:, 1] * oc[1])
-            tt = (-bq + np.sqrt(np.maximum(bq * bq - 4 * a * (oc @ oc - radius ** 2), 0))) / (2 * a)
-            zt = o[2] + tt * d[:, 2]
-            phi = np.arctan2(o[1] + tt * d[:, 1] - self.centre[1], o[0] + tt * d[:, 0] - self.centre[0])
-            prof = self.tree_profiles[k]
-            idx = (phi / (2 * np.pi) % 1.0) * len(prof)
-            i0 = idx.astype(np.int64) % len(prof)
-            fr = idx - np.floor(idx)
-            top = prof[i0] * (1 - fr) + prof[(i0 + 1) % len(prof)] * fr
-            hit = (zt <= top) & (zt >= -2.0) & (tt < flat_t[cand])
-            sel = cand[hit]
-            flat_t[sel] = tt[hit]
-            flat_label[sel] = LABEL_TREES
-            trees.append((sel, phi[hit] * radius, zt[hit], k))
-            cand = cand[~hit]
-        # polygons: the raster gives the candidate; the exact ray/plane hit gives the depth (z-test vs the rest)
+        n = H * W
+        label = np.empty((H, W), np.uint8)
+        canopy = np.empty((H, W), bool)
+        tree_k = np.empty(n, np.int8)
+        tree_arc = np.zeros(n, np.float32)
+        tree_z = np.zeros(n, np.float32)
+        pk = np.empty(n, np.int32)
+        tab = polys.table if polys.table is not None else poly_table(polys)
         pid = ids[bundle.raster_y, bundle.raster_x].reshape(-1)
-        has = np.flatnonzero(pid >= 0)
-        poly_px = poly_k = np.zeros(0, np.int64)
-        if has.size:
-            k = pid[has]
-            tab = polys.table
-            tab = poly_table(polys) if tab is None else tab
-            orel = (polys.origin - o).astype(np.float32)
-            num = np.einsum("ij,ij->i", tab[:, _N], orel)[k]
-            g = tab[k]
-            orel_k = orel[k]
-            dh = fd[has]
-            den = g[:, 6] * dh[:, 0] + g[:, 7] * dh[:, 1] + g[:, 8] * dh[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tk = num / den
-            ok = (tk > NEAR_M) & (tk < flat_t[has]) & (np.abs(den) > 1e-9)
-            # the hit must lie on the polygon (within its radius plus a pixel): a ray through the edge of a
-            # nearly edge-on polygon would otherwise meet its plane far from the polygon itself
-            rel = tk[:, None] * dh - orel_k
-            reach = g[:, _RADIUS] + _F32(2.0 * bundle.pixel_angle) * np.abs(tk) * bundle.ray_norm.reshape(-1)[has]
-            ok &= np.einsum("ij,ij->i", rel, rel) <= reach * reach
-            poly_px, poly_k = has[ok], k[ok]
-            flat_t[poly_px] = tk[ok]
-            flat_label[poly_px] = np.where(polys.material[poly_k] == MAT_CANOPY, LABEL_CANOPY, LABEL_LEAF)
-            canopy.reshape(-1)[poly_px] = False
+        trace_surfaces(dirs.reshape(-1, 3), bundle.ray_norm.reshape(-1), o, t.reshape(-1), label.reshape(-1),
+                       canopy.reshape(-1),
+                       np.array([self.field.canopy_height(), x0, x1, y0, y1, PRISM1_RANGE_M], np.float64),
+                       self.centre, np.asarray(self.tree_radii, np.float64), self.tree_profiles, tree_k, tree_arc,
+                       tree_z, pid, tab, (polys.origin - o).astype(np.float32), polys.material == MAT_CANOPY,
+                       float(bundle.pixel_angle), NEAR_M, pk)
+        trees = []
+        for k in range(len(self.tree_radii)):
+            sel = np.flatnonzero(tree_k == k)
+            trees.append((sel, tree_arc[sel], tree_z[sel], k))
+        poly_px = np.flatnonzero(pk >= 0)
+        poly_k = pk[poly_px].astype(np.int64)
         return Trace(dirs, t, label, hgx, hgy, canopy, poly_px, poly_k, trees)
 
     def _shade(self, bundle: RayBundle, tr: Trace, T_F_rect: np.ndarray, polys: PolySet, t_s: float, sun_e: float,
@@ -533,11 +490,7 @@ class FieldRenderer:
             return buf - 1
         rel = polys.origin[idx] - o
         order = idx[np.argsort(-np.einsum("ij,ij->i", rel, rel), kind="stable")]
-        pts = np.round(np.clip(np.stack([u, w], -1), -4000, 8000) * 16).astype(np.int32)
-        fill = cv2.fillPoly
-        line8 = cv2.LINE_8
-        for k in order.tolist():
-            fill(buf, [pts[k]], k + 1, line8, 4)
+        raster_polygons(np.clip(np.stack([u, w], -1), -4000, 8000).astype(np.float64), order, buf)
         return buf - 1
 
     def _shade_sky(self, bundle: RayBundle, dirs: np.ndarray, sky: np.ndarray, o: np.ndarray, t_s: float,
@@ -581,8 +534,8 @@ class FieldRenderer:
         fp = tt * bundle.ray_norm * _F32(bundle.pixel_angle) / np.sqrt(cos_inc)
         lod_m = np.log2(np.maximum(fp, _F32(1e-6)))
         st = self.soil
-        surf = sample_rows(st.surface, px, py, lod_m - _F32(np.log2(st.surface.texel_m)), soil)
-        grain = sample_rows(st.grain, px, py, lod_m - _F32(np.log2(st.grain.texel_m)), soil, max_level=4)
+        surf = sample_image(st.surface, px, py, lod_m - _F32(np.log2(st.surface.texel_m)), soil)
+        grain = sample_image(st.grain, px, py, lod_m - _F32(np.log2(st.grain.texel_m)), soil, max_level=4)
         large = sample_level(st.large, px, py, 1)
         gx = tr.hgx + surf[..., 3]
         gy = tr.hgy + surf[..., 4]

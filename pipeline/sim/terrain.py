@@ -20,11 +20,11 @@ at the camera's distances (≥ 0.9 m) its effect on disparity is below 0.1 px.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from pipeline.sim.config import FieldConfig
 from pipeline.sim.noise import fbm
+from pipeline.sim.terrain_kernels import height_grad_points, intersect_rays, pad_grids
 
 _LONG_STEP_M = 2.0
 _LONG_HALF_M = 800.0
@@ -32,6 +32,7 @@ _RELIEF_TEXEL_M = 0.02
 _RELIEF_SIZE = 512
 RELIEF_FADE_M = (8.0, 20.0)
 UNDULATION_FADE_M = (60.0, 150.0)
+_FADES = np.array([*UNDULATION_FADE_M, *RELIEF_FADE_M], np.float64)
 
 
 class Terrain:
@@ -75,6 +76,7 @@ class Terrain:
         self._relief = np.stack([rel, rx, ry], -1).astype(np.float32)
         self.h_min = float(self._long[..., 0].min() + rel.min()) - 1e-3
         self.h_max = float(self._long[..., 0].max() + rel.max()) + 1e-3
+        self._long_k, self._relief_k = pad_grids(self._long, self._relief)
 
     def height_grad(self, x: np.ndarray, y: np.ndarray, weights: tuple[np.ndarray, np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -86,20 +88,17 @@ class Terrain:
         x = np.asarray(x)
         y = np.asarray(y)
         shape = x.shape
-        xf = x.reshape(-1) if x.ndim != 2 else x
-        yf = y.reshape(-1) if y.ndim != 2 else y
-        u_l = ((xf - self._long_origin[0]) / _LONG_STEP_M).astype(np.float32)
-        v_l = ((yf - self._long_origin[1]) / _LONG_STEP_M).astype(np.float32)
-        u_r = (np.mod(xf, _RELIEF_SIZE * _RELIEF_TEXEL_M) / _RELIEF_TEXEL_M - 0.5).astype(np.float32)
-        v_r = (np.mod(yf, _RELIEF_SIZE * _RELIEF_TEXEL_M) / _RELIEF_TEXEL_M - 0.5).astype(np.float32)
-        a = _remap(self._long, u_l, v_l, cv2.BORDER_CONSTANT)
-        b = _remap(self._relief, u_r, v_r, cv2.BORDER_WRAP)
+        xf = np.ascontiguousarray(x, np.float64).reshape(-1)
+        yf = np.ascontiguousarray(y, np.float64).reshape(-1)
         if weights is None:
-            s = a + b
+            wu = wr = np.ones(xf.size, np.float32)
         else:
-            wu, wr = weights
-            s = a * wu.reshape(a.shape[:-1] + (1,)) + b * wr.reshape(b.shape[:-1] + (1,))
-        return s[..., 0].reshape(shape), s[..., 1].reshape(shape), s[..., 2].reshape(shape)
+            wu = np.broadcast_to(np.asarray(weights[0], np.float32).reshape(-1), xf.shape)
+            wr = np.broadcast_to(np.asarray(weights[1], np.float32).reshape(-1), xf.shape)
+        out = np.empty((xf.size, 3), np.float32)
+        height_grad_points(self._long_k, *self._long_origin, _LONG_STEP_M, self._relief_k, _RELIEF_TEXEL_M, xf, yf, wu,
+                           wr, out)
+        return out[:, 0].reshape(shape), out[:, 1].reshape(shape), out[:, 2].reshape(shape)
 
     @staticmethod
     def lod_weights(dist_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,40 +134,12 @@ class Terrain:
             ``(t, h, hx, hy)``, each shaped like ``dirs[..., 0]`` (float32): the ray parameter and the terrain
             height and slopes at the hit (from the last iteration; not meaningful where ``t`` is inf).
         """
-        dz = dirs[..., 2]
-        down = dz < -1e-5
-        safe_dz = np.where(down, dz, np.float32(-1.0))
-        oz = np.float32(origin[2])
-        # the ray can only meet the ground inside the slab [h_min, h_max]: start at the plane z = 0 within it
-        t_in = np.maximum((np.float32(self.h_max) - oz) / safe_dz, np.float32(1e-3))
-        t_out = (np.float32(self.h_min) - oz) / safe_dz
-        t = np.clip(-oz / safe_dz, t_in, t_out)
-        weights = None
-        if ref_xy is not None:
-            ex = np.float32(origin[0] - ref_xy[0]) + t * dirs[..., 0]
-            ey = np.float32(origin[1] - ref_xy[1]) + t * dirs[..., 1]
-            weights = self.lod_weights(np.sqrt(ex * ex + ey * ey))
-        h = hx = hy = np.zeros_like(t)
-        for _ in range(iterations):
-            px = np.float32(origin[0]) + t * dirs[..., 0]
-            py = np.float32(origin[1]) + t * dirs[..., 1]
-            h, hx, hy = self.height_grad(px, py, weights)
-            f = oz + t * dz - h
-            fp = np.minimum(safe_dz - hx * dirs[..., 0] - hy * dirs[..., 1], np.float32(0.2) * safe_dz)
-            t = np.clip(t - f / fp, t_in, t_out)
-        t = np.where(down & (t < t_max), t, np.float32(np.inf)).astype(np.float32)
-        return t, h, hx, hy
-
-
-def _remap(grid: np.ndarray, u: np.ndarray, v: np.ndarray, border: int) -> np.ndarray:
-    """Bilinear lookup of a (H, W, C) grid at texel coordinates u, v (1-D or 2-D arrays); returns (..., C)."""
-    if u.ndim == 2 and u.shape[0] < 32000 and u.shape[1] < 32000:
-        return cv2.remap(grid, u, v, cv2.INTER_LINEAR, borderMode=border, borderValue=0)
-    n = u.size
-    width = 1024
-    rows = max(1, -(-n // width))
-    pad = rows * width - n
-    U = np.pad(u.ravel(), (0, pad)).reshape(rows, width)
-    V = np.pad(v.ravel(), (0, pad)).reshape(rows, width)
-    out = cv2.remap(grid, U, V, cv2.INTER_LINEAR, borderMode=border, borderValue=0)
-    return out.reshape(rows * width, grid.shape[2])[:n]
+        d = np.ascontiguousarray(dirs, np.float32).reshape(-1, 3)
+        out = np.empty((d.shape[0], 4), np.float32)
+        use_lod = ref_xy is not None
+        rx, ry = (float(ref_xy[0]), float(ref_xy[1])) if use_lod else (0.0, 0.0)
+        intersect_rays(self._long_k, *self._long_origin, _LONG_STEP_M, self._relief_k, _RELIEF_TEXEL_M, self.h_min,
+                       self.h_max, np.asarray(origin, np.float64), d, float(t_max), int(iterations), rx, ry, use_lod,
+                       _FADES, out)
+        shape = dirs.shape[:-1]
+        return tuple(np.ascontiguousarray(out[:, c]).reshape(shape) for c in range(4))  # type: ignore[return-value]

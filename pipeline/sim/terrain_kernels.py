@@ -1,0 +1,167 @@
+"""Compiled (numba) per-point kernels of the terrain: bilinear height/slope lookup and the ray intersection.
+
+The terrain is the bilinear interpolation of two grids (see :mod:`pipeline.sim.terrain`):
+
+* ``long``: (N, N, 3) float32 ``(h, dh/dx, dh/dy)`` samples at ``origin + (j, i) · step`` (texel centres at
+  integer coordinates), zero outside the grid;
+* ``relief``: (M, M, 3) float32 samples of a tileable grid, texel ``(j, i)`` centred at ``((j, i) + 0.5) · texel``
+  and repeating with period ``M · texel``.
+
+The interpolation is exact bilinear in float64 (no fixed-point weights), evaluated per point in one pass; every
+user of the terrain (rendering, plants, wheels) goes through these kernels, so all see one surface.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+
+
+def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grids as the kernels read them: ``long`` with a one-texel zero border on every side, ``relief`` with
+    its first row and column repeated after the last (so neither lookup needs a branch per corner)."""
+    long_p = np.zeros((long.shape[0] + 2, long.shape[1] + 2, 3), np.float32)
+    long_p[1:-1, 1:-1] = long
+    relief_p = np.concatenate([relief, relief[:1]], 0)
+    relief_p = np.ascontiguousarray(np.concatenate([relief_p, relief_p[:, :1]], 1), np.float32)
+    return long_p, relief_p
+
+
+@numba.njit(**_NJIT)
+def height_grad_points(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
+                       x: np.ndarray, y: np.ndarray, wu: np.ndarray, wr: np.ndarray, out: np.ndarray) -> None:
+    """``out[k, :3] = (h, dh/dx, dh/dy)`` at field points ``(x[k], y[k])`` (1-D float arrays, metres), the
+    undulation weighted by ``wu[k]`` and the relief by ``wr[k]`` (level of detail).
+
+    ``long`` and ``relief`` are the padded grids of :func:`pad_grids`; ``long``'s texel (0, 0) sits at
+    ``(lx0, ly0)`` in the unpadded grid, ``lstep`` metres apart; the relief's texel is ``rtexel`` metres. (One loop
+    with the lookups written out: a helper taking the grids per point would cost more than the lookup itself.)
+    """
+    lw = long.shape[1] - 2
+    lh = long.shape[0] - 2
+    m_w = relief.shape[1] - 1
+    m_h = relief.shape[0] - 1
+    for k in range(x.size):
+        xk = float(x[k])
+        yk = float(y[k])
+        h = hx = hy = 0.0
+        wuk = float(wu[k])
+        wrk = float(wr[k])
+        ul = (xk - lx0) / lstep
+        vl = (yk - ly0) / lstep
+        fu = math.floor(ul)
+        fv = math.floor(vl)
+        if wuk > 0.0 and fu >= -1.0 and fv >= -1.0 and fu < lw and fv < lh:  # zero beyond the grid
+            j = int(fu) + 1
+            i = int(fv) + 1
+            a = ul - fu
+            b = vl - fv
+            w00 = (1.0 - a) * (1.0 - b) * wuk
+            w01 = a * (1.0 - b) * wuk
+            w10 = (1.0 - a) * b * wuk
+            w11 = a * b * wuk
+            h = w00 * long[i, j, 0] + w01 * long[i, j + 1, 0] + w10 * long[i + 1, j, 0] + w11 * long[i + 1, j + 1, 0]
+            hx = w00 * long[i, j, 1] + w01 * long[i, j + 1, 1] + w10 * long[i + 1, j, 1] + \
+                w11 * long[i + 1, j + 1, 1]
+            hy = w00 * long[i, j, 2] + w01 * long[i, j + 1, 2] + w10 * long[i + 1, j, 2] + \
+                w11 * long[i + 1, j + 1, 2]
+        if wrk > 0.0 and math.isfinite(xk) and math.isfinite(yk):  # periodic
+            ur = xk / rtexel - 0.5
+            vr = yk / rtexel - 0.5
+            fu = math.floor(ur)
+            fv = math.floor(vr)
+            a = ur - fu
+            b = vr - fv
+            j = int(fu - m_w * math.floor(fu / m_w))
+            i = int(fv - m_h * math.floor(fv / m_h))
+            w00 = (1.0 - a) * (1.0 - b) * wrk
+            w01 = a * (1.0 - b) * wrk
+            w10 = (1.0 - a) * b * wrk
+            w11 = a * b * wrk
+            h += w00 * relief[i, j, 0] + w01 * relief[i, j + 1, 0] + w10 * relief[i + 1, j, 0] + \
+                w11 * relief[i + 1, j + 1, 0]
+            hx += w00 * relief[i, j, 1] + w01 * relief[i, j + 1, 1] + w10 * relief[i + 1, j, 1] + \
+                w11 * relief[i + 1, j + 1, 1]
+            hy += w00 * relief[i, j, 2] + w01 * relief[i, j + 1, 2] + w10 * relief[i + 1, j, 2] + \
+                w11 * relief[i + 1, j + 1, 2]
+        out[k, 0] = h
+        out[k, 1] = hx
+        out[k, 2] = hy
+
+
+@numba.njit(**_NJIT)
+def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
+                   h_min: float, h_max: float, origin: np.ndarray, dirs: np.ndarray, t_max: float, iterations: int,
+                   ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, out: np.ndarray) -> None:
+    """First ground hit of rays ``origin + t · dirs[k]`` (see :meth:`pipeline.sim.terrain.Terrain.intersect`):
+    Newton steps from the hit with the plane z = 0, kept inside the slab ``[h_min, h_max]``.
+
+    Args:
+        long, lx0, ly0, lstep, relief, rtexel: the terrain grids, as in :func:`height_grad_points`.
+        origin: (3,) float64 ray origin, field frame, metres.
+        dirs: (N, 3) float32 directions.
+        ref_x, ref_y, use_lod: level-of-detail reference point (used when ``use_lod``).
+        fades: (4,) float64 ``(u0, u1, r0, r1)`` undulation and relief fade distances, metres.
+        out: (N, 4) float32 ``(t, h, hx, hy)`` (``t = inf`` for no hit; h and slopes of the last iteration, zero
+            for rays that do not point down).
+    """
+    n_all = dirs.shape[0]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    u0, u1, r0, r1 = fades[0], fades[1], fades[2], fades[3]
+    down = np.empty(n_all, np.int64)  # only rays pointing down can meet the ground
+    n = 0
+    for k in range(n_all):
+        out[k, 0] = np.inf
+        out[k, 1] = 0.0
+        out[k, 2] = 0.0
+        out[k, 3] = 0.0
+        if dirs[k, 2] < -1e-5:
+            down[n] = k
+            n += 1
+    t = np.empty(n)
+    t_in = np.empty(n)
+    t_out = np.empty(n)
+    px = np.empty(n)
+    py = np.empty(n)
+    wu = np.ones(n, np.float32)
+    wr = np.ones(n, np.float32)
+    hg = np.zeros((n, 3), np.float32)
+    for m in range(n):
+        k = down[m]
+        dz = float(dirs[k, 2])
+        t_in[m] = max((h_max - oz) / dz, 1e-3)
+        t_out[m] = (h_min - oz) / dz
+        tk = min(max(-oz / dz, t_in[m]), t_out[m])
+        t[m] = tk
+        px[m] = ox + tk * float(dirs[k, 0])
+        py[m] = oy + tk * float(dirs[k, 1])
+        if use_lod:
+            ex = px[m] - ref_x
+            ey = py[m] - ref_y
+            dist = math.sqrt(ex * ex + ey * ey)
+            wu[m] = min(max((u1 - dist) / (u1 - u0), 0.0), 1.0)
+            wr[m] = min(max((r1 - dist) / (r1 - r0), 0.0), 1.0)
+    for _ in range(iterations):
+        height_grad_points(long, lx0, ly0, lstep, relief, rtexel, px, py, wu, wr, hg)
+        for m in range(n):
+            k = down[m]
+            dx = float(dirs[k, 0])
+            dy = float(dirs[k, 1])
+            dz = float(dirs[k, 2])
+            f = oz + t[m] * dz - hg[m, 0]
+            fp = min(dz - hg[m, 1] * dx - hg[m, 2] * dy, 0.2 * dz)
+            tk = min(max(t[m] - f / fp, t_in[m]), t_out[m])
+            t[m] = tk
+            px[m] = ox + tk * dx
+            py[m] = oy + tk * dy
+    for m in range(n):
+        k = down[m]
+        if t[m] < t_max:
+            out[k, 0] = t[m]
+        out[k, 1] = hg[m, 0]
+        out[k, 2] = hg[m, 1]
+        out[k, 3] = hg[m, 2]
