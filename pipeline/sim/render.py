@@ -34,6 +34,7 @@ from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, Rende
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_image, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
+from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords
 from pipeline.sim.trace_kernels import raster_polygons, trace_surfaces
 from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
 from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
@@ -179,9 +180,9 @@ class StereoRender:
     mean_level: float
 
 
-# columns of the per-frame polygon attribute table (float32), gathered once per pixel
-_E1, _E2, _N, _ALB, _SIZE, _EXTRA, _GROUND, _RADIUS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13, \
-    14, 15
+# columns of the per-frame polygon attribute table (float32): e1 0-2, e2 3-5, normal 6-8, albedo 9-11, size, extra,
+# ground height, radius (the kernels read it by these positions)
+_EXTRA, _GROUND = 13, 14
 
 
 def poly_table(polys: PolySet) -> np.ndarray:
@@ -468,7 +469,7 @@ class FieldRenderer:
         rgb = np.clip(np.rint(dn), 0, 255).astype(np.uint8)
         return np.ascontiguousarray(rgb[..., ::-1]), mean_level
 
-    # ---- pieces --------------------------------------------------------------------------------------------------------
+    # ---- pieces -----------------------------------------------------------------------------------------------
     def _raster(self, view: CameraView, T_F_rect: np.ndarray, polys: PolySet) -> np.ndarray:
         """Polygon id raster (H_r, W_r) int32 of the nearest polygon in painter's order (-1 = none)."""
         R = np.asarray(T_F_rect[:3, :3], np.float64)
@@ -525,7 +526,7 @@ class FieldRenderer:
 
     def _shade_soil(self, bundle: RayBundle, o: np.ndarray, tr: Trace, soil: np.ndarray, sun_e: float, atlas,
                     out: np.ndarray) -> None:
-        """Shade the soil pixels of ``out`` (H, W, 3) in place (full-image arrays, row-band texture sampling)."""
+        """Shade the soil pixels of ``out`` (H, W, 3) in place (full-image arrays, per-pixel trilinear textures)."""
         dirs = tr.dirs
         tt = np.where(soil, tr.t, _F32(0))
         px = _F32(o[0]) + tt * dirs[..., 0]
@@ -536,7 +537,7 @@ class FieldRenderer:
         st = self.soil
         surf = sample_image(st.surface, px, py, lod_m - _F32(np.log2(st.surface.texel_m)), soil)
         grain = sample_image(st.grain, px, py, lod_m - _F32(np.log2(st.grain.texel_m)), soil, max_level=4)
-        large = sample_level(st.large, px, py, 1)
+        large = st.large.sample_lod(px, py, 1.0, soil)  # one mip level (bilinear)
         gx = tr.hgx + surf[..., 3]
         gy = tr.hgy + surf[..., 4]
         inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
@@ -559,78 +560,43 @@ class FieldRenderer:
             ao[in_rows] = ao_r
         irr = (_F32(0.55) + _F32(0.45) * inv) * ao + _F32(sun_e) * lam * (1 - shadow)
         col = surf[..., :3] * (grain * large * irr)[..., None]
-        out[soil] = col[soil]
+        np.copyto(out, col, where=soil[..., None])
 
     def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
                      polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:
-        """Radiance (N, 3) and glare radiance (N,) of polygon pixels with rays ``d`` and depths ``t``."""
-        tab = polys.table
-        g = (poly_table(polys) if tab is None else tab)[k]
-        rel = (t[:, None] * d) - (polys.origin - o).astype(np.float32)[k]
-        e1 = g[:, _E1]
-        e2 = g[:, _E2]
-        a = rel[:, 0] * e1[:, 0] + rel[:, 1] * e1[:, 1] + rel[:, 2] * e1[:, 2]
-        b = rel[:, 0] * e2[:, 0] + rel[:, 1] * e2[:, 1] + rel[:, 2] * e2[:, 2]
-        n = g[:, _N].copy()
-        ud = d / norm_d[:, None]
-        ndv = n[:, 0] * ud[:, 0] + n[:, 1] * ud[:, 1] + n[:, 2] * ud[:, 2]
-        n[ndv > 0] *= -1  # two-sided: the normal towards the viewer
-        sd = self.sky.sun_dir.astype(np.float32)
-        ndl = n @ sd
-        mat = polys.material[k]
-        fp = t * norm_d * _F32(bundle.pixel_angle) / np.sqrt(np.maximum(np.abs(ndv), 0.05))
-        out = np.zeros((len(t), 3), np.float32)
-        glare = np.zeros(len(t), np.float32)
-        leaf = mat != MAT_CANOPY
+        """Radiance (N, 3) and glare radiance (N,) of polygon pixels with rays ``d`` and depths ``t``
+        (lighting model in :mod:`pipeline.sim.shade_kernels`)."""
+        tab = polys.table if polys.table is not None else poly_table(polys)
+        n = len(t)
+        d = np.ascontiguousarray(d, np.float32)
+        t = np.ascontiguousarray(t, np.float32)
+        norm_d = np.ascontiguousarray(norm_d, np.float32)
+        coords = np.empty((n, 3), np.float32)
+        poly_surface_coords(d, t, norm_d, k, tab, (polys.origin - o).astype(np.float32), float(bundle.pixel_angle),
+                            coords)
+        a, b, fp = coords[:, 0], coords[:, 1], coords[:, 2]
+        canopy_poly = polys.material == MAT_CANOPY
+        leaf = ~canopy_poly[k]
+        tex = np.ones((n, 3), np.float32)
+        shadow = np.zeros(n, np.float32)
         if leaf.any():
             li = np.flatnonzero(leaf)
-            gl = g[li]
-            size = gl[:, _SIZE]
-            aa = a[li] / size
-            bb = b[li] / size
-            midrib = np.exp(-(bb / _F32(0.02)) ** 2)
-            vein = np.maximum(np.cos(_F32(2 * np.pi / 0.14) * (aa - 1.5 * np.abs(bb))), 0) ** 10 * (np.abs(bb) < 0.28)
-            soy = (mat[li] == MAT_LEAF).astype(np.float32)
-            ex = gl[:, _EXTRA]
+            ex = tab[k[li], _EXTRA]
+            # one leaf-noise level for the frame's leaves (their median footprint)
             lvl = int(np.clip(np.round(np.log2(max(float(np.median(fp[li])), 1e-6) / self.leaf_noise.texel_m)), 0, 6))
-            tex = (1.0 + (_F32(0.22) * midrib + _F32(0.10) * vein) * soy) * \
-                sample_level(self.leaf_noise, a[li] + 7.1 * ex, b[li] + 3.3 * ex, lvl)
-            albl = gl[:, _ALB] * tex[:, None]
-            # leaves are not flat: folded along the midrib and arched along it (shading normal only)
-            fold = (_F32(0.6) + _F32(0.9) * ex) * np.clip(bb, -0.35, 0.35)
-            arch = _F32(0.5) * (aa - _F32(0.5))
-            sgn = np.where(ndv[li] > 0, _F32(-1), _F32(1))[:, None]
-            nl = n[li] + sgn * (fold[:, None] * e2[li] + arch[:, None] * e1[li])
-            nl /= np.linalg.norm(nl, axis=1, keepdims=True)
-            n[li] = nl
-            ndl[li] = nl @ sd
+            tex[li, 0] = sample_level(self.leaf_noise, a[li] + 7.1 * ex, b[li] + 3.3 * ex, lvl)
             pz = _F32(o[2]) + t[li] * d[li, 2]
-            px = _F32(o[0]) + t[li] * d[li, 0]
-            py = _F32(o[1]) + t[li] * d[li, 1]
-            hz = pz - gl[:, _GROUND]
-            hrel = np.clip(hz / _F32(max(self.cfg_field.plant_height_m, 0.05)), 0, 1.2)
-            ao = _F32(0.45) + _F32(0.55) * hrel
-            sh = self._shadow(atlas, px, py, pz, hz, 0.03)
-            lit = _F32(sun_e) * (1 - sh)
-            front = np.maximum(ndl[li], 0)
-            trans = np.maximum(-ndl[li], 0) * _F32(0.45)
-            ambient = ao * (_F32(0.55) + _F32(0.45) * np.abs(nl[:, 2]))
-            col = albl * (ambient + lit * (front + trans * _F32(0.8)))[:, None]
-            col += albl * np.array([0.25, 0.35, 0.0], np.float32)[None] * (lit * trans)[:, None]
-            hv = sd[None] - ud[li]
-            hv /= np.linalg.norm(hv, axis=1, keepdims=True)
-            ndh = np.maximum(nl[:, 0] * hv[:, 0] + nl[:, 1] * hv[:, 1] + nl[:, 2] * hv[:, 2], 0)
-            spec = (ndh ** 48) * (ndl[li] > 0) * lit * _F32(self.cfg_light.leaf_gloss * 0.9) * (_F32(0.6) + _F32(0.8) * ex)
-            col += spec[:, None] * np.array([1.0, 1.0, 0.95], np.float32)[None]
-            out[li] = col
-            glare[li] = spec
-        if (~leaf).any():
+            shadow[li] = self._shadow(atlas, _F32(o[0]) + t[li] * d[li, 0], _F32(o[1]) + t[li] * d[li, 1], pz,
+                                      pz - tab[k[li], _GROUND], 0.03)
+        if not leaf.all():
             ci = np.flatnonzero(~leaf)
-            var = g[ci, _EXTRA]
-            alb_t = self.foliage.sample(a[ci] + 13.7 * var, b[ci] + 5.1 * var, fp[ci])
-            ao = 1.0 - _F32(0.35) * np.clip(b[ci] / _F32(0.35), 0, 1)
-            irr = ao * _F32(0.8) + _F32(sun_e * 0.85) * np.maximum(ndl[ci], 0)
-            out[ci] = alb_t * irr[:, None]
+            var = tab[k[ci], _EXTRA]
+            tex[ci] = self.foliage.sample(a[ci] + 13.7 * var, b[ci] + 5.1 * var, fp[ci])
+        out = np.empty((n, 3), np.float32)
+        glare = np.empty(n, np.float32)
+        poly_radiance(d, t, norm_d, k, tab, polys.material == MAT_LEAF, canopy_poly, coords, tex, shadow, float(o[2]),
+                      np.asarray(self.sky.sun_dir, np.float64), float(sun_e), float(self.cfg_field.plant_height_m),
+                      float(self.cfg_light.leaf_gloss), out, glare)
         return out, glare
 
     def _glare(self, bundle: RayBundle, dirs: np.ndarray, R: np.ndarray, sun_e: float) -> np.ndarray | None:

@@ -1,0 +1,121 @@
+"""Compiled (numba) shading of polygon pixels (leaflets, weeds, canopy prisms; see ``render._shade_polys``).
+
+Two passes around the texture and shadow lookups, which stay with their own samplers:
+
+1. :func:`poly_surface_coords`: texture coordinates on each pixel's polygon and its footprint;
+2. :func:`poly_radiance`: the lighting model (two-sided normals, folded and arched leaf shading normals, sun with
+   leaf translucency and glossy highlights, ambient with height occlusion; canopy prisms with a darker base).
+
+Per pixel ``i``: ray ``d[i]`` (field frame, rectified z = 1) of length ``norm_d[i]``, depth ``t[i]`` and polygon
+``k[i]`` of the table ``tab`` (``render.poly_table`` columns: e1 0-2, e2 3-5, normal 6-8, albedo 9-11, size 12,
+extra 13, ground 14). Arithmetic is float64 per pixel; results are float32.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+
+
+@numba.njit(**_NJIT)
+def poly_surface_coords(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
+                        orel: np.ndarray, pixel_angle: float, out: np.ndarray) -> None:
+    """``out[i] = (a, b, footprint)``: hit point in the polygon's texture axes (metres from its origin along e1,
+    e2) and the pixel's footprint on it (metres; grows as the view becomes grazing).
+
+    Args:
+        orel: (P, 3) float32 polygon origins minus the camera centre, metres.
+        pixel_angle: angular pixel size, rad.
+        out: (N, 3) float32.
+    """
+    for i in range(t.size):
+        p = k[i]
+        ti = float(t[i])
+        rx = ti * d[i, 0] - orel[p, 0]
+        ry = ti * d[i, 1] - orel[p, 1]
+        rz = ti * d[i, 2] - orel[p, 2]
+        out[i, 0] = rx * tab[p, 0] + ry * tab[p, 1] + rz * tab[p, 2]
+        out[i, 1] = rx * tab[p, 3] + ry * tab[p, 4] + rz * tab[p, 5]
+        ndv = (tab[p, 6] * d[i, 0] + tab[p, 7] * d[i, 1] + tab[p, 8] * d[i, 2]) / norm_d[i]
+        out[i, 2] = ti * norm_d[i] * pixel_angle / math.sqrt(max(abs(ndv), 0.05))
+
+
+@numba.njit(**_NJIT)
+def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
+                  is_soy: np.ndarray, is_canopy: np.ndarray, coords: np.ndarray, tex: np.ndarray,
+                  shadow: np.ndarray, origin_z: float, sun_dir: np.ndarray, sun_e: float, plant_height: float,
+                  leaf_gloss: float, rad: np.ndarray, glare: np.ndarray) -> None:
+    """Linear radiance ``rad[i]`` (RGB) and glare radiance ``glare[i]`` (the specular part) of polygon pixels.
+
+    Args:
+        is_soy, is_canopy: (P,) bool soybean leaflet (midrib and veins) / canopy prism, per polygon.
+        coords: (N, 3) from :func:`poly_surface_coords`.
+        tex: (N, 3) float32: leaves: the leaf-noise factor in column 0; canopy prisms: the foliage albedo.
+        shadow: (N,) float32 fraction of sun blocked by leaves (leaves only).
+        origin_z: camera centre height, metres (field frame).
+        sun_dir: (3,) unit direction towards the sun; sun_e: direct sun irradiance.
+        plant_height: canopy height for the height occlusion, metres.
+        leaf_gloss: strength of the glossy highlight.
+        rad: (N, 3) float32 output; glare: (N,) float32 output.
+    """
+    sx, sy, sz = sun_dir[0], sun_dir[1], sun_dir[2]
+    for i in range(t.size):
+        p = k[i]
+        ti = float(t[i])
+        nd = float(norm_d[i])
+        ux, uy, uz = d[i, 0] / nd, d[i, 1] / nd, d[i, 2] / nd
+        nx, ny, nz = float(tab[p, 6]), float(tab[p, 7]), float(tab[p, 8])
+        ndv = nx * ux + ny * uy + nz * uz
+        sgn = 1.0
+        if ndv > 0.0:  # two-sided: the normal towards the viewer
+            nx, ny, nz = -nx, -ny, -nz
+            sgn = -1.0
+        a = float(coords[i, 0])
+        b = float(coords[i, 1])
+        if is_canopy[p]:
+            ao = 1.0 - 0.35 * min(max(b / 0.35, 0.0), 1.0)
+            irr = ao * 0.8 + sun_e * 0.85 * max(nx * sx + ny * sy + nz * sz, 0.0)
+            for c in range(3):
+                rad[i, c] = tex[i, c] * irr
+            glare[i] = 0.0
+            continue
+        size = float(tab[p, 12])
+        ex = float(tab[p, 13])
+        aa = a / size
+        bb = b / size
+        f = 1.0
+        if is_soy[p]:
+            midrib = math.exp(-(bb / 0.02) ** 2)
+            vein = max(math.cos(2.0 * math.pi / 0.14 * (aa - 1.5 * abs(bb))), 0.0) ** 10 * (abs(bb) < 0.28)
+            f = 1.0 + 0.22 * midrib + 0.10 * vein
+        f *= float(tex[i, 0])
+        # leaves are not flat: folded along the midrib and arched along it (shading normal only)
+        fold = (0.6 + 0.9 * ex) * min(max(bb, -0.35), 0.35)
+        arch = 0.5 * (aa - 0.5)
+        lx = nx + sgn * (fold * tab[p, 3] + arch * tab[p, 0])
+        ly = ny + sgn * (fold * tab[p, 4] + arch * tab[p, 1])
+        lz = nz + sgn * (fold * tab[p, 5] + arch * tab[p, 2])
+        ln = math.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / ln, ly / ln, lz / ln
+        ndl = lx * sx + ly * sy + lz * sz
+        hz = origin_z + ti * d[i, 2] - tab[p, 14]
+        ao = 0.45 + 0.55 * min(max(hz / max(plant_height, 0.05), 0.0), 1.2)
+        lit = sun_e * (1.0 - shadow[i])
+        front = max(ndl, 0.0)
+        trans = max(-ndl, 0.0) * 0.45
+        ambient = ao * (0.55 + 0.45 * abs(lz))
+        base = ambient + lit * (front + trans * 0.8)
+        hx, hy, hzv = sx - ux, sy - uy, sz - uz
+        hn = math.sqrt(hx * hx + hy * hy + hzv * hzv)
+        ndh = max((lx * hx + ly * hy + lz * hzv) / hn, 0.0)
+        spec = ndh ** 48 * (ndl > 0.0) * lit * leaf_gloss * 0.9 * (0.6 + 0.8 * ex)
+        tint = (0.25, 0.35, 0.0)
+        white = (1.0, 1.0, 0.95)
+        for c in range(3):
+            alb = float(tab[p, 9 + c]) * f
+            rad[i, c] = alb * base + alb * tint[c] * lit * trans + spec * white[c]
+        glare[i] = spec
