@@ -124,7 +124,7 @@ class MipTexture:
     texel_m: float
 
     def __post_init__(self) -> None:
-        self._flat, self._info = pack_levels(self.levels)
+        self._flat, self._info, self._scale = pack_levels(self.levels)
         self._channels = int(np.prod(self.levels[0].shape[2:], dtype=np.int64))
 
     @classmethod
@@ -157,7 +157,7 @@ class MipTexture:
         lv = np.ascontiguousarray(np.broadcast_to(np.asarray(lod, np.float32), shape)).reshape(-1)
         ok = np.ones(x.size, bool) if valid is None else np.ascontiguousarray(valid, bool).reshape(-1)
         out = np.zeros((x.size, self._channels), np.float32)
-        mip_sample(self._flat, self._info, x, y, lv, ok, 1.0 / self.texel_m,
+        mip_sample(self._flat, self._info, self._scale, x, y, lv, ok, 1.0 / self.texel_m,
                    len(self.levels) if max_level is None else int(max_level), float(beyond), out)
         return out.reshape(shape + self.levels[0].shape[2:])
 

@@ -15,24 +15,27 @@ import numpy as np
 _NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
-def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``(flat, info)``: all levels (H_l, W_l[, C]) float32 concatenated, and (L, 3) int64 ``(offset, H_l, W_l)``."""
+def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(flat, info, scale)``: all levels (H_l, W_l[, C]) float32 concatenated, (L, 3) int64
+    ``(offset, H_l, W_l)`` and (L, 3) float64 ``(2^-l, 1/H_l, 1/W_l)`` (so the kernel never divides)."""
     info = np.zeros((len(levels), 3), np.int64)
+    scale = np.zeros((len(levels), 3), np.float64)
     off = 0
     for k, lv in enumerate(levels):
         info[k] = (off, lv.shape[0], lv.shape[1])
+        scale[k] = (0.5 ** k, 1.0 / lv.shape[0], 1.0 / lv.shape[1])
         off += lv.size
     flat = np.concatenate([np.ascontiguousarray(lv, np.float32).reshape(-1) for lv in levels])
-    return flat, info
+    return flat, info, scale
 
 
 @numba.njit(**_NJIT)
-def mip_sample(flat: np.ndarray, info: np.ndarray, x: np.ndarray, y: np.ndarray, lod: np.ndarray,
-               valid: np.ndarray, inv_texel: float, max_level: int, beyond: float, out: np.ndarray) -> None:
+def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndarray, y: np.ndarray,
+               lod: np.ndarray, valid: np.ndarray, inv_texel: float, max_level: int, beyond: float, out: np.ndarray) -> None:
     """Trilinear samples of a packed pyramid at surface points.
 
     Args:
-        flat, info: the pyramid from :func:`pack_levels` (C channels per texel, ``C = out.shape[1]``).
+        flat, info, scale: the pyramid from :func:`pack_levels` (C channels per texel, ``C = out.shape[1]``).
         x, y: (N,) surface coordinates, metres (x → columns, y → rows).
         lod: (N,) level of detail, log2(footprint / level-0 texel); clamped to the pyramid; the two levels around
             it are blended by its fraction.
@@ -57,34 +60,40 @@ def mip_sample(flat: np.ndarray, info: np.ndarray, x: np.ndarray, y: np.ndarray,
             for c in range(c_n):
                 out[k, c] = beyond
             continue
-        for c in range(c_n):
-            out[k, c] = 0.0
         xk = float(x[k]) * inv_texel
         yk = float(y[k]) * inv_texel
+        # the 4 + 4 taps of the two levels (offsets into flat, weights), then one pass over the channels
+        p0 = p1 = p2 = p3 = p4 = p5 = p6 = p7 = 0
+        w0 = w1 = w2 = w3 = w4 = w5 = w6 = w7 = 0.0
         for step in range(2):
             lv = l0 + step
             wgt = 1.0 - f if step == 0 else f
             if wgt <= 0.0 or lv >= n_lev:
                 continue
             off, h, w = info[lv, 0], info[lv, 1], info[lv, 2]
-            s = 0.5 ** lv
+            s = scale[lv, 0]
             u = xk * s - 0.5
             v = yk * s - 0.5
             fu = math.floor(u)
             fv = math.floor(v)
             a = u - fu
             b = v - fv
-            j0 = int(fu - w * math.floor(fu / w))
-            i0 = int(fv - h * math.floor(fv / h))
+            j0 = min(max(int(fu - w * math.floor(fu * scale[lv, 2])), 0), w - 1)
+            i0 = min(max(int(fv - h * math.floor(fv * scale[lv, 1])), 0), h - 1)
             j1 = j0 + 1 if j0 + 1 < w else 0
             i1 = i0 + 1 if i0 + 1 < h else 0
-            p00 = off + (i0 * w + j0) * c_n
-            p01 = off + (i0 * w + j1) * c_n
-            p10 = off + (i1 * w + j0) * c_n
-            p11 = off + (i1 * w + j1) * c_n
-            w00 = (1.0 - a) * (1.0 - b) * wgt
-            w01 = a * (1.0 - b) * wgt
-            w10 = (1.0 - a) * b * wgt
-            w11 = a * b * wgt
-            for c in range(c_n):
-                out[k, c] += w00 * flat[p00 + c] + w01 * flat[p01 + c] + w10 * flat[p10 + c] + w11 * flat[p11 + c]
+            q00 = off + (i0 * w + j0) * c_n
+            q01 = off + (i0 * w + j1) * c_n
+            q10 = off + (i1 * w + j0) * c_n
+            q11 = off + (i1 * w + j1) * c_n
+            v00 = (1.0 - a) * (1.0 - b) * wgt
+            v01 = a * (1.0 - b) * wgt
+            v10 = (1.0 - a) * b * wgt
+            v11 = a * b * wgt
+            if step == 0:
+                p0, p1, p2, p3, w0, w1, w2, w3 = q00, q01, q10, q11, v00, v01, v10, v11
+            else:
+                p4, p5, p6, p7, w4, w5, w6, w7 = q00, q01, q10, q11, v00, v01, v10, v11
+        for c in range(c_n):
+            out[k, c] = (w0 * flat[p0 + c] + w1 * flat[p1 + c] + w2 * flat[p2 + c] + w3 * flat[p3 + c]
+                         + w4 * flat[p4 + c] + w5 * flat[p5 + c] + w6 * flat[p6 + c] + w7 * flat[p7 + c])
