@@ -32,7 +32,7 @@ import numpy as np
 from msckf.camera import PinholeRadtan, StereoRig
 from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RenderConfig
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
-from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_image, sample_level, smooth_noise_1d
+from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords
 from pipeline.sim.trace_kernels import raster_polygons, trace_surfaces
@@ -526,32 +526,34 @@ class FieldRenderer:
 
     def _shade_soil(self, bundle: RayBundle, o: np.ndarray, tr: Trace, soil: np.ndarray, sun_e: float, atlas,
                     out: np.ndarray) -> None:
-        """Shade the soil pixels of ``out`` (H, W, 3) in place (full-image arrays, per-pixel trilinear textures)."""
-        dirs = tr.dirs
-        tt = np.where(soil, tr.t, _F32(0))
-        px = _F32(o[0]) + tt * dirs[..., 0]
-        py = _F32(o[1]) + tt * dirs[..., 1]
-        cos_inc = np.maximum(-dirs[..., 2] / bundle.ray_norm, _F32(0.02))
-        fp = tt * bundle.ray_norm * _F32(bundle.pixel_angle) / np.sqrt(cos_inc)
-        lod_m = np.log2(np.maximum(fp, _F32(1e-6)))
+        """Shade the soil pixels of ``out`` (H, W, 3) in place (computed on the soil pixels only, per-pixel
+        trilinear textures)."""
+        idx = np.flatnonzero(soil)
+        d = tr.dirs.reshape(-1, 3)[idx]
+        tt = tr.t.reshape(-1)[idx]
+        norm = bundle.ray_norm.reshape(-1)[idx]
+        px = _F32(o[0]) + tt * d[:, 0]
+        py = _F32(o[1]) + tt * d[:, 1]
+        cos_inc = np.maximum(-d[:, 2] / norm, _F32(0.02))
+        dist = tt * norm
+        lod_m = np.log2(np.maximum(dist * _F32(bundle.pixel_angle) / np.sqrt(cos_inc), _F32(1e-6)))
         st = self.soil
-        surf = sample_image(st.surface, px, py, lod_m - _F32(np.log2(st.surface.texel_m)), soil)
-        grain = sample_image(st.grain, px, py, lod_m - _F32(np.log2(st.grain.texel_m)), soil, max_level=4)
-        large = st.large.sample_lod(px, py, 1.0, soil)  # one mip level (bilinear)
-        gx = tr.hgx + surf[..., 3]
-        gy = tr.hgy + surf[..., 4]
+        surf = st.surface.sample_lod(px, py, lod_m - _F32(np.log2(st.surface.texel_m)))
+        grain = st.grain.sample_lod(px, py, lod_m - _F32(np.log2(st.grain.texel_m)), max_level=4)
+        large = st.large.sample_lod(px, py, 1.0)  # one mip level (bilinear)
+        gx = tr.hgx.reshape(-1)[idx] + surf[:, 3]
+        gy = tr.hgy.reshape(-1)[idx] + surf[:, 4]
         inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
         sd = self.sky.sun_dir
         lam = np.maximum((_F32(sd[2]) - gx * _F32(sd[0]) - gy * _F32(sd[1])) * inv, 0)
-        dist = tt * bundle.ray_norm
         shadow = np.zeros_like(tt)
         ao = np.ones_like(tt)
         rng_m = self.cfg_render.shadow_range_m
-        near = soil & (dist < rng_m)
+        near = dist < rng_m
         if near.any():
             z0 = np.zeros(int(near.sum()), np.float32)
             shadow[near] = self._shadow(atlas, px[near], py[near], z0, z0, 0.01)
-        in_rows = soil & (px > -1.0) & (px < self.field.row_extent[1] + 1.0) & (py > -1.0) & \
+        in_rows = (px > -1.0) & (px < self.field.row_extent[1] + 1.0) & (py > -1.0) & \
             (py < self.field.row_extent[3] + 1.0)
         if in_rows.any():
             rs, ao_r = self._row_shadow(px[in_rows], py[in_rows])
@@ -559,8 +561,7 @@ class FieldRenderer:
             shadow[in_rows] = shadow[in_rows] * (1 - blend) + rs * blend
             ao[in_rows] = ao_r
         irr = (_F32(0.55) + _F32(0.45) * inv) * ao + _F32(sun_e) * lam * (1 - shadow)
-        col = surf[..., :3] * (grain * large * irr)[..., None]
-        np.copyto(out, col, where=soil[..., None])
+        out.reshape(-1, 3)[idx] = surf[:, :3] * (grain * large * irr)[:, None]
 
     def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
                      polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:

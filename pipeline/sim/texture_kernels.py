@@ -31,7 +31,8 @@ def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.nd
 
 @numba.njit(**_NJIT)
 def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndarray, y: np.ndarray,
-               lod: np.ndarray, valid: np.ndarray, inv_texel: float, max_level: int, beyond: float, out: np.ndarray) -> None:
+               lod: np.ndarray, valid: np.ndarray, inv_texel: float, max_level: int, beyond: float,
+               out: np.ndarray) -> None:
     """Trilinear samples of a packed pyramid at surface points.
 
     Args:

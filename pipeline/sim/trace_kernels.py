@@ -196,3 +196,16 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
         t[r] = tr
         label[r] = lab
         canopy[r] = is_canopy
+
+
+@numba.njit(**_NJIT)
+def max_vertex_distance(verts: np.ndarray, origin: np.ndarray, out: np.ndarray) -> None:
+    """``out[k]``: largest distance (m) from ``origin[k]`` (N, 3) to a vertex of ``verts[k]`` (N, V, 3)."""
+    for k in range(verts.shape[0]):
+        best = 0.0
+        for m in range(verts.shape[1]):
+            dx = verts[k, m, 0] - origin[k, 0]
+            dy = verts[k, m, 1] - origin[k, 1]
+            dz = verts[k, m, 2] - origin[k, 2]
+            best = max(best, dx * dx + dy * dy + dz * dz)
+        out[k] = math.sqrt(best)

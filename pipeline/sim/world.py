@@ -21,13 +21,13 @@ from __future__ import annotations
 from collections import OrderedDict
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from pipeline.sim.config import FieldConfig
 from pipeline.sim.hashing import hash_normal, hash_uniform
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.textures import srgb_to_linear
+from pipeline.sim.trace_kernels import max_vertex_distance, raster_polygons
 
 BLOCK_M = 4.0
 SEG0_M = 0.25
@@ -78,7 +78,10 @@ class PolySet:
     @property
     def radius(self) -> np.ndarray:
         """(N,) largest distance from ``origin`` to a vertex, metres."""
-        return np.sqrt(((self.verts - self.origin[:, None, :]) ** 2).sum(-1).max(1))
+        out = np.empty(len(self), np.float64)
+        max_vertex_distance(np.ascontiguousarray(self.verts, np.float64), np.ascontiguousarray(self.origin, np.float64),
+                            out)
+        return out
 
     @staticmethod
     def empty(n_verts: int = 3) -> "PolySet":
@@ -507,10 +510,11 @@ class Field:
             q = ps.verts[..., :2] + hz[..., None] * disp[None, None, :]
             px = (q - np.array([x0, y0])) / SHADOW_TEXEL_M
             inside = (px.max(1) >= 0).all(1) & (px.min(1) < n).all(1)
-            order = np.argsort(ps.origin[:, 2], kind="stable")
-            pts = np.round(np.clip(px, -1e4, 1e4) * 16).astype(np.int32)
-            for k in order[inside[order]]:
-                cv2.fillPoly(out, [pts[k]], float(ps.origin[k, 2]), cv2.LINE_8, 4)
+            order = np.argsort(ps.origin[:, 2], kind="stable")  # higher leaves drawn last: the max height wins
+            ids = np.zeros((n, n), np.int32)
+            # texel (i, j) is centred at ((j, i) + 0.5) texels: the raster samples integer coordinates
+            raster_polygons(np.clip(px - 0.5, -1e4, 1e4).astype(np.float64), order[inside[order]], ids)
+            out = np.where(ids > 0, ps.origin[np.maximum(ids - 1, 0), 2], SHADOW_NONE).astype(np.float32)
         self._shadow[key] = out
         if len(self._shadow) > 160:
             self._shadow.popitem(last=False)
