@@ -35,7 +35,7 @@ from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords
-from pipeline.sim.trace_kernels import raster_polygons, trace_surfaces
+from pipeline.sim.trace_kernels import project_polygons, raster_polygons, trace_surfaces
 from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
 from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
                                 Field, PolySet)
@@ -477,21 +477,18 @@ class FieldRenderer:
         buf = np.zeros((view.height, view.width), np.int32)
         if not len(polys):
             return buf - 1
-        v = (polys.verts - o).astype(np.float32) @ R.astype(np.float32)  # (N, V, 3) rectified camera frame
-        z = v[..., 2]
-        front = (z > NEAR_M).all(1)
-        facing = (np.einsum("ij,ij->i", polys.normal, o[None] - polys.origin) > 0) | (polys.material != MAT_CANOPY)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = view.fx * v[..., 0] / z + view.cx
-            w = view.fy * v[..., 1] / z + view.cy
-        ok = front & facing & (u.max(1) >= -1) & (u.min(1) <= view.width) & (w.max(1) >= -1) & \
-            (w.min(1) <= view.height)
-        idx = np.flatnonzero(ok)
+        n, nv = polys.verts.shape[:2]
+        uv = np.empty((n, nv, 2), np.float64)
+        visible = np.empty(n, bool)
+        dist2 = np.empty(n, np.float64)
+        project_polygons(np.ascontiguousarray(polys.verts, np.float64), np.ascontiguousarray(polys.origin, np.float64),
+                         np.ascontiguousarray(polys.normal, np.float64), polys.material != MAT_CANOPY, R, o,
+                         view.fx, view.fy, view.cx, view.cy, view.width, view.height, NEAR_M, uv, visible, dist2)
+        idx = np.flatnonzero(visible)
         if not idx.size:
             return buf - 1
-        rel = polys.origin[idx] - o
-        order = idx[np.argsort(-np.einsum("ij,ij->i", rel, rel), kind="stable")]
-        raster_polygons(np.clip(np.stack([u, w], -1), -4000, 8000).astype(np.float64), order, buf)
+        order = idx[np.argsort(-dist2[idx], kind="stable")]
+        raster_polygons(uv, order, buf)
         return buf - 1
 
     def _shade_sky(self, bundle: RayBundle, dirs: np.ndarray, sky: np.ndarray, o: np.ndarray, t_s: float,

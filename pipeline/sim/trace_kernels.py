@@ -1,5 +1,6 @@
 """Compiled (numba) visibility kernels of the renderer (see ``render.FieldRenderer._raster`` and ``_trace``).
 
+* :func:`project_polygons`: polygon vertices into a camera's raster, with view culling;
 * :func:`raster_polygons`: the polygon id raster, polygons filled far to near (painter's order);
 * :func:`trace_surfaces`: one pass over the rays of a bundle, after the terrain hit is known: the far canopy
   plane, the two tree lines (vertical cylinders with a height profile) and the polygon that the raster names for
@@ -18,6 +19,51 @@ _NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"
 
 # label values (the renderer's LABEL_*), repeated here so that the kernel needs no import from render
 _SOIL, _SKY, _LEAF, _CANOPY, _TREES = 1, 0, 2, 3, 4
+
+
+@numba.njit(**_NJIT)
+def project_polygons(verts: np.ndarray, origin: np.ndarray, normal: np.ndarray, two_sided: np.ndarray,
+                     R: np.ndarray, o: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
+                     height: int, near_m: float, uv: np.ndarray, visible: np.ndarray, dist2: np.ndarray) -> None:
+    """Project polygons into a camera's raster and cull them.
+
+    Args:
+        verts: (N, V, 3) float64 field-frame vertices; origin, normal: (N, 3) float64 plane point and normal.
+        two_sided: (N,) bool polygons seen from both sides (leaves); the others only from their normal's side.
+        R, o: (3, 3) and (3,) float64 camera pose in the field frame (``p_F = R · p_cam + o``).
+        fx, fy, cx, cy, width, height: raster intrinsics (px) and size.
+        near_m: every vertex must be farther than this in front of the camera.
+        uv: (N, V, 2) float64 output pixel coordinates, clipped to [-4000, 8000].
+        visible: (N,) bool output: in front, facing, and overlapping the raster.
+        dist2: (N,) float64 output squared distance from the camera to the polygon origin, m².
+    """
+    for k in range(verts.shape[0]):
+        ex = o[0] - origin[k, 0]
+        ey = o[1] - origin[k, 1]
+        ez = o[2] - origin[k, 2]
+        dist2[k] = ex * ex + ey * ey + ez * ez
+        ok = two_sided[k] or normal[k, 0] * ex + normal[k, 1] * ey + normal[k, 2] * ez > 0.0
+        u_lo = w_lo = 1e300
+        u_hi = w_hi = -1e300
+        for m in range(verts.shape[1]):
+            px = verts[k, m, 0] - o[0]
+            py = verts[k, m, 1] - o[1]
+            pz = verts[k, m, 2] - o[2]
+            x = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+            y = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+            z = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+            if not z > near_m:
+                ok = False
+                z = near_m
+            u = fx * x / z + cx
+            w = fy * y / z + cy
+            u_lo = min(u_lo, u)
+            u_hi = max(u_hi, u)
+            w_lo = min(w_lo, w)
+            w_hi = max(w_hi, w)
+            uv[k, m, 0] = min(max(u, -4000.0), 8000.0)
+            uv[k, m, 1] = min(max(w, -4000.0), 8000.0)
+        visible[k] = ok and u_hi >= -1.0 and u_lo <= width and w_hi >= -1.0 and w_lo <= height
 
 
 @numba.njit(**_NJIT)
