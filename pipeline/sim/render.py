@@ -384,7 +384,7 @@ class FieldRenderer:
         o = np.asarray(T_F_rect[:3, 3], np.float64)
         dirs = cv2.transform(bundle.rays, R.astype(np.float32))  # (H, W, 3), rectified z = 1
         H, W = dirs.shape[:2]
-        t, _, hgx, hgy = self.terrain.intersect(o, dirs, T_MAX_M, ref_xy=ref_xy)
+        t, _, hgx, hgy = self.terrain.intersect_image(o, dirs, T_MAX_M, ref_xy=ref_xy)
         x0, x1, y0, y1 = self.field.row_extent
         n = H * W
         label = np.empty((H, W), np.uint8)

@@ -54,7 +54,11 @@ from pipeline.sim.workers import FrameJob, RenderService
 from pipeline.sim.sensors import rotation_enu_field, simulate_gps, simulate_odometry
 from pipeline.sim.trajectory import RobotTrajectory
 
-SIM_VERSION = 2
+SIM_VERSION = 3
+#: Frames between a frame and the first frame whose exposure reacts to it (auto-exposure latency). It is also how
+#: many frames can be rendered at once, so it sets how well the render workers overlap (the images do not depend
+#: on the number of workers).
+AE_LATENCY_FRAMES = 3
 #: Phases (seconds after the first IMU sample) of the other streams' first samples.
 CAM_PHASE_S = 0.031
 GPS_PHASE_S = 0.113
@@ -316,7 +320,8 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
             for _ in range(max(1, int(ae_warmup))):
                 fr, _ = svc.render_now(FrameJob(0, float(t_cam[0]), poses[0], ae.exposure))
                 ae.update(fr.mean_level, full=True)
-        exposures = [ae.exposure] * min(2, len(t_cam))
+        lag = AE_LATENCY_FRAMES
+        exposures = [ae.exposure] * min(lag, len(t_cam))
         for k in range(len(exposures)):
             svc.submit(FrameJob(k, float(t_cam[k]), poses[k], exposures[k]))
         with RosarioBagWriter(bag_path, compression=compression, overwrite=overwrite) as w:
@@ -325,11 +330,11 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
             for k in range(len(t_cam)):
                 idx, fr, sun = svc.next_result()
                 assert idx == k
-                # exposure of frame k+2 reacts to frame k (two frames of auto-exposure latency)
-                if k + 2 < len(t_cam):
+                # the exposure of frame k + lag reacts to frame k (auto-exposure latency)
+                if k + lag < len(t_cam):
                     ae.update(fr.mean_level)
                     exposures.append(ae.exposure)
-                    svc.submit(FrameJob(k + 2, float(t_cam[k + 2]), poses[k + 2], ae.exposure))
+                    svc.submit(FrameJob(k + lag, float(t_cam[k + lag]), poses[k + lag], ae.exposure))
                 stamp = int(cam_ns[k])
                 flush_until(w, stamp)
                 frame_stats["mean_level"].append(fr.mean_level)

@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.sim.config import FieldConfig
 from pipeline.sim.noise import fbm
-from pipeline.sim.terrain_kernels import height_grad_points, intersect_rays, pad_grids
+from pipeline.sim.terrain_kernels import height_grad_points, interpolate_guess, intersect_rays, pad_grids
 
 _LONG_STEP_M = 2.0
 _LONG_HALF_M = 800.0
@@ -117,12 +117,14 @@ class Terrain:
         return h.astype(np.float64).reshape(xb.shape)
 
     def intersect(self, origin: np.ndarray, dirs: np.ndarray, t_max: float, iterations: int = 2,
-                  ref_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  ref_xy: np.ndarray | None = None, guess: np.ndarray | None = None, tol: float = 2e-4
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """First ground hit of rays ``origin + t · dirs``.
 
-        Newton iterations from the hit with the plane ``z = 0``. Converges to well below 1 mm where the ray
-        descends more steeply than the terrain's slope (all but grazing rays near the horizon, which are far
-        away and sub-pixel in disparity).
+        Newton iterations from the hit with the plane ``z = 0``. Two of them converge to well below 1 mm where
+        the ray descends steeply; grazing rays far away need more (or a guess: see :meth:`intersect_image`).
+        Rays with a ``guess`` (shaped like ``dirs[..., 0]``, NaN = none) start there and stop once a step moves
+        them by less than ``tol``.
 
         Args:
             origin: (3,) ray origin, field frame, metres.
@@ -130,6 +132,7 @@ class Terrain:
             t_max: rays not pointing down, or hitting beyond ``t_max``, give ``inf``.
             iterations: Newton steps.
             ref_xy: rendering reference point for the level-of-detail fades (see the module docstring).
+            guess, tol: optional starting ray parameters and the step below which a guessed ray has converged.
         Returns:
             ``(t, h, hx, hy)``, each shaped like ``dirs[..., 0]`` (float32): the ray parameter and the terrain
             height and slopes at the hit (from the last iteration; not meaningful where ``t`` is inf).
@@ -138,8 +141,27 @@ class Terrain:
         out = np.empty((d.shape[0], 4), np.float32)
         use_lod = ref_xy is not None
         rx, ry = (float(ref_xy[0]), float(ref_xy[1])) if use_lod else (0.0, 0.0)
+        guess = np.full(d.shape[0], np.nan) if guess is None else np.ascontiguousarray(guess, np.float64).reshape(-1)
         intersect_rays(self._long_k, *self._long_origin, _LONG_STEP_M, self._relief_k, _RELIEF_TEXEL_M, self.h_min,
                        self.h_max, np.asarray(origin, np.float64), d, float(t_max), int(iterations), rx, ry, use_lod,
-                       _FADES, out)
+                       _FADES, guess, float(tol), out)
         shape = dirs.shape[:-1]
         return tuple(np.ascontiguousarray(out[:, c]).reshape(shape) for c in range(4))  # type: ignore[return-value]
+
+    def intersect_image(self, origin: np.ndarray, dirs: np.ndarray, t_max: float, ref_xy: np.ndarray | None = None,
+                        step_px: int = 4, tol: float = 2e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`intersect` for an image of rays (H, W, 3), faster: the rays of a coarse grid (every
+        ``step_px`` pixels, plus the last row and column) are traced from the plane; the others start from the
+        bilinear interpolation of the coarse hits where those are finite and within a factor 1.5 of each other,
+        which a Newton step or two takes to convergence (a step below ``tol``), and from the plane elsewhere.
+
+        Measured against 6 Newton steps from the plane (preset rosario-like-03, 7° tilt, left raw rays): 0.02 %
+        of the hits more than 1 mm off, where 2 steps from the plane left 3-4.5 % (up to 0.7 m at grazing rays);
+        same time."""
+        h, w = dirs.shape[:2]
+        rows = np.unique(np.r_[np.arange(0, h, step_px), h - 1]).astype(np.int64)
+        cols = np.unique(np.r_[np.arange(0, w, step_px), w - 1]).astype(np.int64)
+        t_c = self.intersect(origin, dirs[np.ix_(rows, cols)], t_max, ref_xy=ref_xy)[0]
+        guess = np.empty(h * w, np.float64)
+        interpolate_guess(t_c, rows, cols, h, w, 1.5, guess)
+        return self.intersect(origin, dirs, t_max, iterations=3, ref_xy=ref_xy, guess=guess.reshape(h, w), tol=tol)

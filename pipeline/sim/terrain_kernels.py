@@ -96,17 +96,23 @@ def height_grad_points(long: np.ndarray, lx0: float, ly0: float, lstep: float, r
 @numba.njit(**_NJIT)
 def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
                    h_min: float, h_max: float, origin: np.ndarray, dirs: np.ndarray, t_max: float, iterations: int,
-                   ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, out: np.ndarray) -> None:
+                   ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, guess: np.ndarray, tol: float,
+                   out: np.ndarray) -> None:
     """First ground hit of rays ``origin + t · dirs[k]`` (see :meth:`pipeline.sim.terrain.Terrain.intersect`):
-    Newton steps from the hit with the plane z = 0, kept inside the slab ``[h_min, h_max]``.
+    Newton steps kept inside the slab ``[h_min, h_max]``, from the hit with the plane z = 0 or from a guess.
 
     Args:
         long, lx0, ly0, lstep, relief, rtexel: the terrain grids, as in :func:`height_grad_points`.
         origin: (3,) float64 ray origin, field frame, metres.
         dirs: (N, 3) float32 directions.
-        ref_x, ref_y, use_lod: level-of-detail reference point (used when ``use_lod``).
+        iterations: Newton steps (the most, for rays with a guess).
+        ref_x, ref_y, use_lod: level-of-detail reference point (used when ``use_lod``); a ray's fade weights are
+            taken at its plane hit whether it has a guess or not (one surface for every bundle).
         fades: (4,) float64 ``(u0, u1, r0, r1)`` undulation and relief fade distances, metres.
-        out: (N, 4) float32 ``(t, h, hx, hy)`` (``t = inf`` for no hit; h and slopes of the last iteration, zero
+        guess: (N,) float64 starting ``t`` per ray (NaN: start from the plane); a ray with a guess stops once a
+            Newton step moves it by less than ``tol`` (ray-parameter units; Newton converges quadratically, so
+            the error left is far smaller).
+        out: (N, 4) float32 ``(t, h, hx, hy)`` (``t = inf`` for no hit; h and slopes of the last evaluation, zero
             for rays that do not point down).
     """
     n_all = dirs.shape[0]
@@ -125,43 +131,99 @@ def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relie
     t = np.empty(n)
     t_in = np.empty(n)
     t_out = np.empty(n)
-    px = np.empty(n)
-    py = np.empty(n)
-    wu = np.ones(n, np.float32)
-    wr = np.ones(n, np.float32)
-    hg = np.zeros((n, 3), np.float32)
+    guessed = np.zeros(n, np.bool_)
+    wu_all = np.ones(n, np.float32)
+    wr_all = np.ones(n, np.float32)
     for m in range(n):
         k = down[m]
         dz = float(dirs[k, 2])
         t_in[m] = max((h_max - oz) / dz, 1e-3)
         t_out[m] = (h_min - oz) / dz
         tk = min(max(-oz / dz, t_in[m]), t_out[m])
-        t[m] = tk
-        px[m] = ox + tk * float(dirs[k, 0])
-        py[m] = oy + tk * float(dirs[k, 1])
         if use_lod:
-            ex = px[m] - ref_x
-            ey = py[m] - ref_y
+            ex = ox + tk * float(dirs[k, 0]) - ref_x
+            ey = oy + tk * float(dirs[k, 1]) - ref_y
             dist = math.sqrt(ex * ex + ey * ey)
-            wu[m] = min(max((u1 - dist) / (u1 - u0), 0.0), 1.0)
-            wr[m] = min(max((r1 - dist) / (r1 - r0), 0.0), 1.0)
+            wu_all[m] = min(max((u1 - dist) / (u1 - u0), 0.0), 1.0)
+            wr_all[m] = min(max((r1 - dist) / (r1 - r0), 0.0), 1.0)
+        g = guess[k]
+        if g == g and t_in[m] <= g <= t_out[m]:  # not NaN, inside the slab
+            tk = g
+            guessed[m] = True
+        t[m] = tk
+    # Newton steps over the rays still active (compacted each step)
+    active = np.arange(n)
+    n_act = n
+    px = np.empty(n)
+    py = np.empty(n)
+    wu = np.empty(n, np.float32)
+    wr = np.empty(n, np.float32)
+    hg = np.zeros((n, 3), np.float32)
     for _ in range(iterations):
-        height_grad_points(long, lx0, ly0, lstep, relief, rtexel, px, py, wu, wr, hg)
-        for m in range(n):
+        if n_act == 0:
+            break
+        for a in range(n_act):
+            m = active[a]
+            k = down[m]
+            px[a] = ox + t[m] * float(dirs[k, 0])
+            py[a] = oy + t[m] * float(dirs[k, 1])
+            wu[a] = wu_all[m]
+            wr[a] = wr_all[m]
+        height_grad_points(long, lx0, ly0, lstep, relief, rtexel, px[:n_act], py[:n_act], wu[:n_act], wr[:n_act],
+                           hg[:n_act])
+        keep = 0
+        for a in range(n_act):
+            m = active[a]
             k = down[m]
             dx = float(dirs[k, 0])
             dy = float(dirs[k, 1])
             dz = float(dirs[k, 2])
-            f = oz + t[m] * dz - hg[m, 0]
-            fp = min(dz - hg[m, 1] * dx - hg[m, 2] * dy, 0.2 * dz)
+            f = oz + t[m] * dz - hg[a, 0]
+            fp = min(dz - hg[a, 1] * dx - hg[a, 2] * dy, 0.2 * dz)
             tk = min(max(t[m] - f / fp, t_in[m]), t_out[m])
+            step = abs(tk - t[m])
             t[m] = tk
-            px[m] = ox + tk * dx
-            py[m] = oy + tk * dy
+            out[k, 1] = hg[a, 0]
+            out[k, 2] = hg[a, 1]
+            out[k, 3] = hg[a, 2]
+            if not (guessed[m] and step < tol):
+                active[keep] = m
+                keep += 1
+        n_act = keep
     for m in range(n):
-        k = down[m]
         if t[m] < t_max:
-            out[k, 0] = t[m]
-        out[k, 1] = hg[m, 0]
-        out[k, 2] = hg[m, 1]
-        out[k, 3] = hg[m, 2]
+            out[down[m], 0] = t[m]
+
+
+@numba.njit(**_NJIT)
+def interpolate_guess(t_coarse: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int, width: int,
+                      max_ratio: float, out: np.ndarray) -> None:
+    """Bilinear interpolation of ray parameters traced on a coarse grid of an image's rays.
+
+    Args:
+        t_coarse: (R, C) float32 ``t`` at pixel rows ``rows`` (R,) and columns ``cols`` (C,) (increasing, first 0,
+            last ``height - 1`` / ``width - 1``).
+        max_ratio: no guess (NaN) where the four corners differ by more than this factor, or one is inf
+            (the horizon, depth edges).
+        out: (height * width,) float64 guesses.
+    """
+    i0 = 0
+    for y in range(height):
+        while i0 + 2 < rows.size and rows[i0 + 1] <= y:
+            i0 += 1
+        fy = (y - rows[i0]) / (rows[i0 + 1] - rows[i0])
+        j0 = 0
+        for x in range(width):
+            while j0 + 2 < cols.size and cols[j0 + 1] <= x:
+                j0 += 1
+            fx = (x - cols[j0]) / (cols[j0 + 1] - cols[j0])
+            a = float(t_coarse[i0, j0])
+            b = float(t_coarse[i0, j0 + 1])
+            c = float(t_coarse[i0 + 1, j0])
+            d = float(t_coarse[i0 + 1, j0 + 1])
+            lo = min(min(a, b), min(c, d))
+            hi = max(max(a, b), max(c, d))
+            if math.isfinite(hi) and lo > 0.0 and hi <= max_ratio * lo:
+                out[y * width + x] = (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+            else:
+                out[y * width + x] = np.nan
