@@ -34,7 +34,7 @@ from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, Rende
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
-from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords
+from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords, sensor_digitise, sensor_linear
 from pipeline.sim.trace_kernels import project_polygons, raster_polygons, trace_surfaces
 from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
 from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
@@ -460,14 +460,13 @@ class FieldRenderer:
         lin = rad * _F32(exposure)
         if self.cfg_cam.blur_sigma_px > 0:
             lin = cv2.GaussianBlur(lin, (0, 0), self.cfg_cam.blur_sigma_px)
-        lin *= (view.vignette * _F32(gain))[..., None]
-        val = np.clip(lin, 0.0, 1.0) ** _F32(1 / 2.2)
-        mean_level = float(val.mean())
-        dn = val * _F32(255.0) + _F32(offset_dn)
-        sigma = np.sqrt(_F32(self.cfg_cam.read_noise_dn ** 2) + _F32(self.cfg_cam.shot_noise) * np.maximum(dn, 0))
-        dn += sigma * noise
-        rgb = np.clip(np.rint(dn), 0, 255).astype(np.uint8)
-        return np.ascontiguousarray(rgb[..., ::-1]), mean_level
+        val = np.empty_like(lin)
+        sensor_linear(lin, view.vignette, float(gain), val)
+        val **= _F32(1 / 2.2)  # numpy's vectorised power (a compiled loop calling powf per value is slower)
+        bgr = np.empty(val.shape, np.uint8)
+        mean_level = sensor_digitise(val, float(offset_dn), float(self.cfg_cam.read_noise_dn),
+                                     float(self.cfg_cam.shot_noise), noise, bgr)
+        return bgr, mean_level
 
     # ---- pieces -----------------------------------------------------------------------------------------------
     def _raster(self, view: CameraView, T_F_rect: np.ndarray, polys: PolySet) -> np.ndarray:

@@ -119,3 +119,36 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
             alb = float(tab[p, 9 + c]) * f
             rad[i, c] = alb * base + alb * tint[c] * lit * trans + spec * white[c]
         glare[i] = spec
+
+
+@numba.njit(**_NJIT)
+def sensor_linear(lin: np.ndarray, vignette: np.ndarray, gain: float, out: np.ndarray) -> None:
+    """``out = clip(lin · vignette · gain, 0, 1)``: (H, W, 3) float32 linear sensor level (before the gamma)."""
+    h, w = vignette.shape
+    for i in range(h):
+        for j in range(w):
+            f = vignette[i, j] * gain
+            for c in range(3):
+                out[i, j, c] = min(max(lin[i, j, c] * f, 0.0), 1.0)
+
+
+@numba.njit(**_NJIT)
+def sensor_digitise(val: np.ndarray, offset_dn: float, read_noise_dn: float, shot_noise: float, noise: np.ndarray,
+                    bgr: np.ndarray) -> float:
+    """Digital numbers of gamma-encoded levels ``val`` (H, W, 3) RGB in 0..1: ``dn = 255 · val + offset`` plus
+    Gaussian read and shot noise (``noise``: standard-normal samples, same shape), rounded and clipped into
+    ``bgr`` (H, W, 3) uint8 in BGR order. Returns the mean of ``val`` (the auto-exposure input)."""
+    h, w = val.shape[0], val.shape[1]
+    read2 = read_noise_dn * read_noise_dn
+    total = 0.0
+    for i in range(h):
+        row = 0.0
+        for j in range(w):
+            for c in range(3):
+                v = float(val[i, j, c])
+                row += v
+                dn = v * 255.0 + offset_dn
+                dn += math.sqrt(read2 + shot_noise * max(dn, 0.0)) * noise[i, j, c]
+                bgr[i, j, 2 - c] = np.uint8(min(max(np.rint(dn), 0.0), 255.0))
+        total += row
+    return total / (h * w * 3)
