@@ -19,7 +19,6 @@ rectifies with it, and the VIO projects with it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import cv2
 import numpy as np

@@ -47,7 +47,8 @@ class FeatureObservations:
         for name, shape in (("cam0_xy", (n, 2)), ("cam1_xy", (n, 2)), ("depth_m", (n,)), ("source", (n,)),
                             ("track_length", (n,))):
             if np.shape(getattr(self, name)) != shape:
-                raise ValueError(f"FeatureObservations.{name} must have shape {shape}, got {np.shape(getattr(self, name))}")
+                raise ValueError(f"FeatureObservations.{name} must have shape {shape}, "
+                                 f"got {np.shape(getattr(self, name))}")
 
     def __len__(self) -> int:
         return len(self.ids)

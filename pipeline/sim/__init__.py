@@ -12,18 +12,32 @@ Public API::
 See ``pipeline/sim/sequence.py`` for the output layout and ``pipeline/sim/config.py`` for every parameter.
 """
 
+from typing import Any
+
 from pipeline.sim.config import SimConfig
 from pipeline.sim.presets import get_preset, preset_names
-from pipeline.sim.sequence import SimulatedSequence, simulate_sequence
 
 
-def open_sequence(path) -> SimulatedSequence:
-    """A previously simulated sequence folder (raises ``AgrivioError`` if it is not finished)."""
+def open_sequence(path) -> Any:
+    """A previously simulated sequence folder (``SimulatedSequence``; raises ``AgrivioError`` if it is not
+    finished)."""
     from pathlib import Path
+
+    from pipeline.sim.sequence import SimulatedSequence
 
     seq = SimulatedSequence(Path(path))
     _ = seq.meta
     return seq
+
+
+def __getattr__(name: str) -> Any:
+    """Lazy exports of the sequence module: a render worker importing ``pipeline.sim.workers`` does not load the
+    bag writer, the IMU simulator and their dependencies."""
+    if name in ("SimulatedSequence", "simulate_sequence"):
+        from pipeline.sim import sequence
+
+        return getattr(sequence, name)
+    raise AttributeError(f"module 'pipeline.sim' has no attribute {name!r}")
 
 
 __all__ = ["SimConfig", "SimulatedSequence", "get_preset", "open_sequence", "preset_names", "simulate_sequence"]

@@ -248,6 +248,7 @@ class FieldRenderer:
             hgt[lo < gap] = 0.0
             tree_profiles.append(np.maximum(hgt, 0.0).astype(np.float32))
         self.tree_profiles = np.stack(tree_profiles)  # (2, n) tree-top heights along each tree line, m
+        self.tree_top = self.tree_profiles.max(axis=1).astype(np.float64)  # (2,) highest tree of each line, m
         self.centre = np.array(centre)
         self.tree_radii = (render.treeline_radius_m, render.treeline_radius_m * 3.2)
         self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(1) if threads > 1 else None
@@ -398,7 +399,8 @@ class FieldRenderer:
         trace_surfaces(dirs.reshape(-1, 3), bundle.ray_norm.reshape(-1), o, t.reshape(-1), label.reshape(-1),
                        canopy.reshape(-1),
                        np.array([self.field.canopy_height(), x0, x1, y0, y1, PRISM1_RANGE_M], np.float64),
-                       self.centre, np.asarray(self.tree_radii, np.float64), self.tree_profiles, tree_k, tree_arc,
+                       self.centre, np.asarray(self.tree_radii, np.float64), self.tree_profiles,
+                       self.tree_top, tree_k, tree_arc,
                        tree_z, pid, tab, (polys.origin - o).astype(np.float32), polys.material == MAT_CANOPY,
                        float(bundle.pixel_angle), NEAR_M, pk)
         trees = []

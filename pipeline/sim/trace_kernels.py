@@ -141,9 +141,9 @@ def raster_polygons(uv: np.ndarray, order: np.ndarray, buf: np.ndarray) -> None:
 @numba.njit(**_NJIT)
 def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t: np.ndarray, label: np.ndarray,
                    canopy: np.ndarray, canopy_box: np.ndarray, tree_centre: np.ndarray, tree_radii: np.ndarray,
-                   tree_profiles: np.ndarray, tree_k: np.ndarray, tree_arc: np.ndarray, tree_z: np.ndarray,
-                   pid: np.ndarray, poly_tab: np.ndarray, poly_orel: np.ndarray, poly_is_canopy: np.ndarray,
-                   pixel_angle: float, near_m: float, poly_k: np.ndarray) -> None:
+                   tree_profiles: np.ndarray, tree_top: np.ndarray, tree_k: np.ndarray, tree_arc: np.ndarray,
+                   tree_z: np.ndarray, pid: np.ndarray, poly_tab: np.ndarray, poly_orel: np.ndarray,
+                   poly_is_canopy: np.ndarray, pixel_angle: float, near_m: float, poly_k: np.ndarray) -> None:
     """Nearest non-terrain surface of every ray, in place.
 
     Args:
@@ -157,6 +157,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
             the row extent, only beyond ``min_range`` metres (horizontal) from the camera.
         tree_centre: (2,) float64 centre of the tree-line circles; tree_radii: (K,) their radii, metres.
         tree_profiles: (K, M) float32 tree-top height along each circle (M samples over 2π), metres.
+        tree_top: (K,) float64 highest value of each profile, metres.
         tree_k, tree_arc, tree_z: (N,) outputs: tree line hit (-1: none), arc length (m) and height (m) of the hit.
         pid: (N,) int32 polygon named by the raster for each ray (-1: none).
         poly_tab: (P, 16) float32 polygon table (``render.poly_table``: normal in columns 6-8, radius 15).
@@ -202,6 +203,8 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
                 rad = tree_radii[k]
                 tt = (-bq + math.sqrt(max(bq * bq - 4.0 * a * (oc2 - rad * rad), 0.0))) / (2.0 * a)
                 zt = oz + tt * dz
+                if zt > tree_top[k] or zt < -2.0 or not tt < tr:  # above the highest tree (most sky rays)
+                    continue
                 phi = math.atan2(oy + tt * dy - tree_centre[1], ox + tt * dx - tree_centre[0])
                 idx = (phi / (2.0 * math.pi) % 1.0) * n_prof
                 i0 = int(idx) % n_prof
