@@ -511,8 +511,7 @@ class FieldRenderer:
         gx = (np.arange(W) / step).astype(np.float32)
         mxg, myg = np.meshgrid(gx, gy)
         fine = cv2.remap(coarse, mxg, myg, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        band = sky[r0:r1]
-        out[r0:r1][band] = fine[band]
+        np.copyto(out[r0:r1], fine, where=sky[r0:r1, :, None])
         # the sun disk (and its area-weighted brightness when smaller than a pixel)
         sd = self.sky.sun_dir.astype(np.float32)
         cosang = (dirs[..., 0] * sd[0] + dirs[..., 1] * sd[1] + dirs[..., 2] * sd[2]) / bundle.ray_norm
