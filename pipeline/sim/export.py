@@ -47,6 +47,16 @@ def _finite(depth: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(depth), depth, np.float32(np.nan))
 
 
+def encode_depth_frame(depth: np.ndarray, label: np.ndarray, glare: np.ndarray, right_depth: np.ndarray | None = None,
+                       right_label: np.ndarray | None = None) -> tuple:
+    """PNG byte streams of one frame's ground truth, as :class:`DepthChunkWriter` stores them: ``(depth, label,
+    glare, right depth or None, right label or None)``; depth in uint16 millimetres (0 = none), glare × 255."""
+    g = np.clip(np.rint(np.nan_to_num(glare) * 255.0), 0, 255).astype(np.uint8)
+    return (_png(encode_depth_mm(_finite(depth))), _png(label), _png(g),
+            None if right_depth is None else _png(encode_depth_mm(_finite(right_depth))),
+            None if right_label is None else _png(right_label))
+
+
 class DepthChunkWriter:
     """Streams exact ground-truth depth of every left frame into ``depth/chunk_NNNNN.npz`` files.
 
@@ -65,11 +75,11 @@ class DepthChunkWriter:
 
     def add(self, index: int, stamp_ns: int, depth: np.ndarray, label: np.ndarray, glare: np.ndarray,
             right_depth: np.ndarray | None = None, right_label: np.ndarray | None = None) -> None:
-        g = np.clip(np.rint(np.nan_to_num(glare) * 255.0), 0, 255).astype(np.uint8)
-        row = (int(index), int(stamp_ns), _png(encode_depth_mm(_finite(depth))), _png(label), _png(g),
-               None if right_depth is None else _png(encode_depth_mm(_finite(right_depth))),
-               None if right_label is None else _png(right_label))
-        self._rows.append(row)
+        self.add_encoded(index, stamp_ns, encode_depth_frame(depth, label, glare, right_depth, right_label))
+
+    def add_encoded(self, index: int, stamp_ns: int, blobs: tuple) -> None:
+        """Add a frame already encoded by :func:`encode_depth_frame` (e.g. in a render worker)."""
+        self._rows.append((int(index), int(stamp_ns), *blobs))
         self.frames += 1
         if len(self._rows) == self.chunk:
             self.flush()

@@ -318,7 +318,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     try:
         if len(t_cam):  # auto exposure converges on the first frame (the camera was running before recording)
             for _ in range(max(1, int(ae_warmup))):
-                fr, _ = svc.render_now(FrameJob(0, float(t_cam[0]), poses[0], ae.exposure))
+                fr = svc.render_now(FrameJob(0, float(t_cam[0]), poses[0], ae.exposure))
                 ae.update(fr.mean_level, full=True)
         lag = AE_LATENCY_FRAMES
         exposures = [ae.exposure] * min(lag, len(t_cam))
@@ -328,7 +328,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
             w.set_camera_info(rig)
             bar = tqdm(total=len(t_cam), desc=f"simulate {cfg.name}", unit="frame", disable=not progress)
             for k in range(len(t_cam)):
-                idx, fr, sun = svc.next_result()
+                idx, fr = svc.next_result()
                 assert idx == k
                 # the exposure of frame k + lag reacts to frame k (auto-exposure latency)
                 if k + lag < len(t_cam):
@@ -339,9 +339,9 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
                 flush_until(w, stamp)
                 frame_stats["mean_level"].append(fr.mean_level)
                 frame_stats["exposure"].append(exposures[k])
-                frame_stats["sun"].append(sun)
+                frame_stats["sun"].append(fr.sun)
                 w.write_stereo(stamp, fr.left_bgr, fr.right_bgr)
-                depth_writer.add(k, stamp, fr.depth, fr.label, fr.glare, fr.right_depth, fr.right_label)
+                depth_writer.add_encoded(k, stamp, fr.depth_blobs)
                 if euroc is not None:
                     euroc.add_stereo(stamp, fr.left_bgr, fr.right_bgr)
                 T_L, _ = camera_poses(poses[k], rig)

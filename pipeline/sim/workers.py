@@ -16,9 +16,23 @@ import numpy as np
 from msckf.camera import StereoRig
 from pipeline.process_pool import spawn_pool
 from pipeline.sim.config import SimConfig
+from pipeline.sim.export import encode_depth_frame
 from pipeline.sim.render import FieldRenderer, StereoRender
 
 NOISE_BANK = 1 << 20
+
+
+@dataclass
+class EncodedFrame:
+    """What the sequence writer needs of a rendered frame: the raw BGR images (376, 672, 3) uint8, the left
+    image's mean level before noise (auto-exposure input), the sun irradiance, and the ground truth already
+    PNG-encoded (``export.encode_depth_frame``; encoding in the worker keeps the result small to send)."""
+
+    left_bgr: np.ndarray
+    right_bgr: np.ndarray
+    mean_level: float
+    sun: float
+    depth_blobs: tuple
 
 
 @dataclass(frozen=True)
@@ -56,6 +70,11 @@ class FrameRenderer:
                                         self.noise(job.index, 1), right_depth=self.right_depth)
         return fr, sun
 
+    def render_encoded(self, job: FrameJob) -> EncodedFrame:
+        fr, sun = self.render(job)
+        return EncodedFrame(fr.left_bgr, fr.right_bgr, fr.mean_level, sun,
+                            encode_depth_frame(fr.depth, fr.label, fr.glare, fr.right_depth, fr.right_label))
+
 
 _WORKER: FrameRenderer | None = None
 
@@ -66,9 +85,9 @@ def _init(rig: StereoRig, cfg: SimConfig, world_seed: int, seed: int, right_dept
     _WORKER.right_depth = right_depth
 
 
-def _work(job: FrameJob) -> tuple[StereoRender, float]:
+def _work(job: FrameJob) -> EncodedFrame:
     assert _WORKER is not None
-    return _WORKER.render(job)
+    return _WORKER.render_encoded(job)
 
 
 class RenderService:
@@ -91,30 +110,29 @@ class RenderService:
         else:
             self._inline = FrameRenderer(rig, cfg, world_seed, seed, threads=1)
             self._inline.right_depth = right_depth
-        self._pending: deque[tuple[int, Future | tuple]] = deque()
+        self._pending: deque[tuple[int, Future | EncodedFrame]] = deque()
 
-    def render_now(self, job: FrameJob) -> tuple[StereoRender, float]:
+    def render_now(self, job: FrameJob) -> EncodedFrame:
         """Render one frame synchronously (used for the auto-exposure start)."""
         if self._pool is not None:
             return self._pool.submit(_work, job).result()
         assert self._inline is not None
-        return self._inline.render(job)
+        return self._inline.render_encoded(job)
 
     def submit(self, job: FrameJob) -> None:
         if self._pool is not None:
             self._pending.append((job.index, self._pool.submit(_work, job)))
         else:
             assert self._inline is not None
-            self._pending.append((job.index, self._inline.render(job)))
+            self._pending.append((job.index, self._inline.render_encoded(job)))
 
     def in_flight(self) -> int:
         return len(self._pending)
 
-    def next_result(self) -> tuple[int, StereoRender, float]:
+    def next_result(self) -> tuple[int, EncodedFrame]:
         """The oldest submitted frame's result (blocks)."""
         index, item = self._pending.popleft()
-        fr, sun = item.result() if isinstance(item, Future) else item
-        return index, fr, sun
+        return index, item.result() if isinstance(item, Future) else item
 
     def close(self) -> None:
         if self._pool is not None:
