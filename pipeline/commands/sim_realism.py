@@ -38,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _sequence(preset: str, args: argparse.Namespace):
     from pipeline.paths import cache_dir
     from pipeline.sim.presets import get_preset
-    from pipeline.sim.sequence import SimulatedSequence, resolve_config, simulate_sequence
+    from pipeline.sim.sequence import SIM_VERSION, SimulatedSequence, resolve_config, simulate_sequence
 
     try:
         cfg = resolve_config(get_preset(preset), args.duration)
@@ -47,7 +47,9 @@ def _sequence(preset: str, args: argparse.Namespace):
     root = cache_dir() / "sim" / f"{preset}-s{args.seed}-{cfg.duration_s:g}s-realism"
     if not args.resimulate and (root / "meta.json").is_file():
         seq = SimulatedSequence(root)
-        if seq.meta.get("config") == json.loads(json.dumps(cfg.to_dict())) and seq.meta["seed"] == args.seed:
+        # reuse only a sequence of this simulator version, configuration and seed
+        if seq.meta.get("config") == json.loads(json.dumps(cfg.to_dict())) and seq.meta["seed"] == args.seed \
+                and seq.meta.get("simulator_version") == SIM_VERSION:
             return seq
     workers = args.workers if args.workers is not None else min(2, os.cpu_count() or 1)
     return simulate_sequence(cfg, root, seed=args.seed, right_depth=True, progress=not args.quiet,
