@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pipeline.sim.texture_kernels import mip_sample, pack_levels
+from pipeline.sim.texture_kernels import level_sample, mip_sample, pack_levels
 
 
 def periodic_blur(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -154,6 +154,11 @@ class MipTexture:
         shape = np.shape(x_m)
         x = np.ascontiguousarray(x_m, np.float64).reshape(-1)
         y = np.ascontiguousarray(y_m, np.float64).reshape(-1)
+        if valid is None and np.ndim(lod) == 0 and float(lod) == int(lod) and 0 <= int(lod) < len(self.levels) \
+                and (max_level is None or int(lod) < max_level):  # one whole level: plain bilinear
+            out = np.empty((x.size, self._channels), np.float32)
+            level_sample(self._flat, self._info, self._scale, int(lod), x, y, 1.0 / self.texel_m, out)
+            return out.reshape(shape + self.levels[0].shape[2:])
         lv = np.ascontiguousarray(np.broadcast_to(np.asarray(lod, np.float32), shape)).reshape(-1)
         ok = np.ones(x.size, bool) if valid is None else np.ascontiguousarray(valid, bool).reshape(-1)
         out = np.zeros((x.size, self._channels), np.float32)

@@ -98,3 +98,36 @@ def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndar
         for c in range(c_n):
             out[k, c] = (w0 * flat[p0 + c] + w1 * flat[p1 + c] + w2 * flat[p2 + c] + w3 * flat[p3 + c]
                          + w4 * flat[p4 + c] + w5 * flat[p5 + c] + w6 * flat[p6 + c] + w7 * flat[p7 + c])
+
+
+@numba.njit(**_NJIT)
+def level_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, level: int, x: np.ndarray, y: np.ndarray,
+                 inv_texel: float, out: np.ndarray) -> None:
+    """Bilinear samples of one level of a packed pyramid (the fixed-level case of :func:`mip_sample`, without
+    its per-point level logic): ``out[k]`` (C channels) at surface points ``(x[k], y[k])`` metres."""
+    c_n = out.shape[1]
+    off, h, w = info[level, 0], info[level, 1], info[level, 2]
+    s = scale[level, 0] * inv_texel
+    inv_h = scale[level, 1]
+    inv_w = scale[level, 2]
+    for k in range(x.size):
+        u = float(x[k]) * s - 0.5
+        v = float(y[k]) * s - 0.5
+        fu = math.floor(u)
+        fv = math.floor(v)
+        a = u - fu
+        b = v - fv
+        j0 = min(max(int(fu - w * math.floor(fu * inv_w)), 0), w - 1)
+        i0 = min(max(int(fv - h * math.floor(fv * inv_h)), 0), h - 1)
+        j1 = j0 + 1 if j0 + 1 < w else 0
+        i1 = i0 + 1 if i0 + 1 < h else 0
+        p0 = off + (i0 * w + j0) * c_n
+        p1 = off + (i0 * w + j1) * c_n
+        p2 = off + (i1 * w + j0) * c_n
+        p3 = off + (i1 * w + j1) * c_n
+        w0 = (1.0 - a) * (1.0 - b)
+        w1 = a * (1.0 - b)
+        w2 = (1.0 - a) * b
+        w3 = a * b
+        for c in range(c_n):
+            out[k, c] = w0 * flat[p0 + c] + w1 * flat[p1 + c] + w2 * flat[p2 + c] + w3 * flat[p3 + c]
