@@ -1,4 +1,4 @@
-"""CPU renderer of the field through the Rosario stereo rig (numpy/OpenCV, headless).
+"""CPU renderer of the field through the Rosario stereo rig (numpy/OpenCV/numba, headless).
 
 Per camera and frame:
 
@@ -7,14 +7,18 @@ Per camera and frame:
    distorted image. Rays have ``z = 1`` in that frame, so a ray parameter *is* the rectified depth ``Z``.
 2. Surfaces: terrain (heightfield, Newton ray intersection), the far canopy plane, two tree lines
    (ray/cylinder), and planar polygons (leaflets, weeds, canopy prisms) drawn far-to-near into an id buffer
-   with ``cv2.fillPoly``; each id pixel then gets its exact depth from the ray/plane intersection and wins over
-   the terrain only where it is nearer (a per-pixel z-test).
+   (filled like ``cv2.fillPoly``); each id pixel then gets its exact depth from the ray/plane intersection and
+   wins over the terrain only where it is nearer (a per-pixel z-test).
 3. Shading in linear radiance: sun (Lambert, leaf translucency, glossy highlights) with leaf shadows from a
    shadow map, sky light with ambient occlusion, bump-mapped soil, mip-mapped textures, sky with clouds and the
    sun, aerial haze, veiling glare and lens-flare ghosts when the sun is near the view.
-4. Camera: exposure, optics blur (on linear radiance), warp to the RAW distorted image with ``cv2.remap`` (maps
-   from the calibration's exact undistortion, computed once), vignetting, per-camera gain, gamma, shot and read
-   noise, 8-bit BGR.
+4. Camera: exposure, optics blur (on linear radiance), vignetting, per-camera gain, gamma, shot and read noise,
+   8-bit BGR. The raw (distorted) image is shaded directly from one ray per raw pixel (the calibration's exact
+   undistortion of every pixel, computed once), so no resampling blurs it.
+
+The per-ray and per-pixel loops (terrain intersection, surface tracing, polygon projection and raster, texture
+sampling, polygon shading, sensor) are numba kernels in ``pipeline/sim/*_kernels.py``; numpy and OpenCV do the
+rest.
 
 Depth comes from the same z-buffer: ``Z`` in the rectified camera frame, metres (``inf`` for the sky). A 3-D
 point, its pixel and its depth therefore agree exactly.
