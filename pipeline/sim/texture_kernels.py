@@ -29,6 +29,24 @@ def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.nd
     return flat, info, scale
 
 
+@numba.njit(inline="always", **_NJIT)
+def _taps(u: float, v: float, off: int, h: int, w: int, inv_h: float, inv_w: float, c_n: int,
+          wgt: float) -> tuple[int, int, int, int, float, float, float, float]:
+    """Offsets into the packed buffer of the 4 texels around texel coordinates (u, v) of a periodic (h, w) level
+    starting at ``off``, and their bilinear weights times ``wgt`` (scalars only: cheap to call per point)."""
+    fu = math.floor(u)
+    fv = math.floor(v)
+    a = u - fu
+    b = v - fv
+    j0 = min(max(int(fu - w * math.floor(fu * inv_w)), 0), w - 1)
+    i0 = min(max(int(fv - h * math.floor(fv * inv_h)), 0), h - 1)
+    j1 = j0 + 1 if j0 + 1 < w else 0
+    i1 = i0 + 1 if i0 + 1 < h else 0
+    return (off + (i0 * w + j0) * c_n, off + (i0 * w + j1) * c_n, off + (i1 * w + j0) * c_n,
+            off + (i1 * w + j1) * c_n, (1.0 - a) * (1.0 - b) * wgt, a * (1.0 - b) * wgt, (1.0 - a) * b * wgt,
+            a * b * wgt)
+
+
 @numba.njit(**_NJIT)
 def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndarray, y: np.ndarray,
                lod: np.ndarray, valid: np.ndarray, inv_texel: float, max_level: int, beyond: float,
@@ -71,26 +89,9 @@ def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndar
             wgt = 1.0 - f if step == 0 else f
             if wgt <= 0.0 or lv >= n_lev:
                 continue
-            off, h, w = info[lv, 0], info[lv, 1], info[lv, 2]
             s = scale[lv, 0]
-            u = xk * s - 0.5
-            v = yk * s - 0.5
-            fu = math.floor(u)
-            fv = math.floor(v)
-            a = u - fu
-            b = v - fv
-            j0 = min(max(int(fu - w * math.floor(fu * scale[lv, 2])), 0), w - 1)
-            i0 = min(max(int(fv - h * math.floor(fv * scale[lv, 1])), 0), h - 1)
-            j1 = j0 + 1 if j0 + 1 < w else 0
-            i1 = i0 + 1 if i0 + 1 < h else 0
-            q00 = off + (i0 * w + j0) * c_n
-            q01 = off + (i0 * w + j1) * c_n
-            q10 = off + (i1 * w + j0) * c_n
-            q11 = off + (i1 * w + j1) * c_n
-            v00 = (1.0 - a) * (1.0 - b) * wgt
-            v01 = a * (1.0 - b) * wgt
-            v10 = (1.0 - a) * b * wgt
-            v11 = a * b * wgt
+            q00, q01, q10, q11, v00, v01, v10, v11 = _taps(xk * s - 0.5, yk * s - 0.5, info[lv, 0], info[lv, 1],
+                                                           info[lv, 2], scale[lv, 1], scale[lv, 2], c_n, wgt)
             if step == 0:
                 p0, p1, p2, p3, w0, w1, w2, w3 = q00, q01, q10, q11, v00, v01, v10, v11
             else:
@@ -111,23 +112,7 @@ def level_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, level: i
     inv_h = scale[level, 1]
     inv_w = scale[level, 2]
     for k in range(x.size):
-        u = float(x[k]) * s - 0.5
-        v = float(y[k]) * s - 0.5
-        fu = math.floor(u)
-        fv = math.floor(v)
-        a = u - fu
-        b = v - fv
-        j0 = min(max(int(fu - w * math.floor(fu * inv_w)), 0), w - 1)
-        i0 = min(max(int(fv - h * math.floor(fv * inv_h)), 0), h - 1)
-        j1 = j0 + 1 if j0 + 1 < w else 0
-        i1 = i0 + 1 if i0 + 1 < h else 0
-        p0 = off + (i0 * w + j0) * c_n
-        p1 = off + (i0 * w + j1) * c_n
-        p2 = off + (i1 * w + j0) * c_n
-        p3 = off + (i1 * w + j1) * c_n
-        w0 = (1.0 - a) * (1.0 - b)
-        w1 = a * (1.0 - b)
-        w2 = (1.0 - a) * b
-        w3 = a * b
+        p0, p1, p2, p3, w0, w1, w2, w3 = _taps(float(x[k]) * s - 0.5, float(y[k]) * s - 0.5, off, h, w, inv_h,
+                                               inv_w, c_n, 1.0)
         for c in range(c_n):
             out[k, c] = w0 * flat[p0 + c] + w1 * flat[p1 + c] + w2 * flat[p2 + c] + w3 * flat[p3 + c]
