@@ -179,23 +179,6 @@ class MipTexture:
         return self.sample_lod(x_m, y_m, np.log2(fp))
 
 
-def sample_image(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, lod: np.ndarray, valid: np.ndarray,
-                 lod_offset: float = 0.0, max_level: int | None = None, beyond: float = 1.0) -> np.ndarray:
-    """Trilinear mip sampling of a whole image of surface points (per-pixel level of detail).
-
-    Args:
-        tex: the texture.
-        x_m, y_m: (H, W) float32 surface coordinates in metres (anything where ``valid`` is False).
-        lod: (H, W) float32 level of detail for a texel of ``tex.texel_m`` (log2 of footprint / texel).
-        valid: (H, W) bool pixels that need a value.
-        lod_offset: added to ``lod`` (for textures sharing a footprint but with another texel size).
-        max_level: pixels needing this level or coarser get the constant ``beyond``.
-    Returns:
-        (H, W[, C]) float32 samples (zero where not valid).
-    """
-    return tex.sample_lod(x_m, y_m, lod + np.float32(lod_offset), valid, max_level, beyond)
-
-
 def sample_level(tex: MipTexture, x_m: np.ndarray, y_m: np.ndarray, level: int) -> np.ndarray:
     """Bilinear sampling of one mip level at surface coordinates (metres): 1-D arrays or 2-D images."""
     lvl = int(np.clip(level, 0, len(tex.levels) - 1))
