@@ -18,10 +18,10 @@ import math
 import numba
 import numpy as np
 
-_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+from pipeline.sim.jit import NJIT
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def poly_surface_coords(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
                         orel: np.ndarray, pixel_angle: float, out: np.ndarray) -> None:
     """``out[i] = (a, b, footprint)``: hit point in the polygon's texture axes (metres from its origin along e1,
@@ -44,7 +44,7 @@ def poly_surface_coords(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.
         out[i, 2] = ti * norm_d[i] * pixel_angle / math.sqrt(max(abs(ndv), 0.05))
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
                   is_soy: np.ndarray, is_canopy: np.ndarray, coords: np.ndarray, tex: np.ndarray,
                   shadow: np.ndarray, origin_z: float, sun_dir: np.ndarray, sun_e: float, plant_height: float,
@@ -121,7 +121,7 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
         glare[i] = spec
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def sensor_linear(lin: np.ndarray, vignette: np.ndarray, gain: float, out: np.ndarray) -> None:
     """``out = clip(lin · vignette · gain, 0, 1)``: (H, W, 3) float32 linear sensor level (before the gamma)."""
     h, w = vignette.shape
@@ -132,7 +132,7 @@ def sensor_linear(lin: np.ndarray, vignette: np.ndarray, gain: float, out: np.nd
                 out[i, j, c] = min(max(lin[i, j, c] * f, 0.0), 1.0)
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def sensor_digitise(val: np.ndarray, offset_dn: float, read_noise_dn: float, shot_noise: float, noise: np.ndarray,
                     bgr: np.ndarray) -> float:
     """Digital numbers of gamma-encoded levels ``val`` (H, W, 3) RGB in 0..1: ``dn = 255 · val + offset`` plus

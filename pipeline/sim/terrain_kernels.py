@@ -18,7 +18,7 @@ import math
 import numba
 import numpy as np
 
-_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+from pipeline.sim.jit import NJIT
 
 
 def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -31,7 +31,7 @@ def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndar
     return long_p, relief_p
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def height_grad_points(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
                        x: np.ndarray, y: np.ndarray, wu: np.ndarray, wr: np.ndarray, out: np.ndarray) -> None:
     """``out[k, :3] = (h, dh/dx, dh/dy)`` at field points ``(x[k], y[k])`` (1-D float arrays, metres), the
@@ -93,7 +93,7 @@ def height_grad_points(long: np.ndarray, lx0: float, ly0: float, lstep: float, r
         out[k, 2] = hy
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
                    h_min: float, h_max: float, origin: np.ndarray, dirs: np.ndarray, t_max: float, iterations: int,
                    ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, guess: np.ndarray, tol: float,
@@ -195,7 +195,7 @@ def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relie
             out[down[m], 0] = t[m]
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def interpolate_guess(t_coarse: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int, width: int,
                       max_ratio: float, out: np.ndarray) -> None:
     """Bilinear interpolation of ray parameters traced on a coarse grid of an image's rays.

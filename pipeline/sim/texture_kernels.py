@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+from pipeline.sim.jit import NJIT
 
 
 def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -29,7 +29,7 @@ def pack_levels(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.nd
     return flat, info, scale
 
 
-@numba.njit(inline="always", **_NJIT)
+@numba.njit(inline="always", **NJIT)
 def _taps(u: float, v: float, off: int, h: int, w: int, inv_h: float, inv_w: float, c_n: int,
           wgt: float) -> tuple[int, int, int, int, float, float, float, float]:
     """Offsets into the packed buffer of the 4 texels around texel coordinates (u, v) of a periodic (h, w) level
@@ -47,7 +47,7 @@ def _taps(u: float, v: float, off: int, h: int, w: int, inv_h: float, inv_w: flo
             a * b * wgt)
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndarray, y: np.ndarray,
                lod: np.ndarray, valid: np.ndarray, inv_texel: float, max_level: int, beyond: float,
                out: np.ndarray) -> None:
@@ -101,7 +101,7 @@ def mip_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, x: np.ndar
                          + w4 * flat[p4 + c] + w5 * flat[p5 + c] + w6 * flat[p6 + c] + w7 * flat[p7 + c])
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def level_sample(flat: np.ndarray, info: np.ndarray, scale: np.ndarray, level: int, x: np.ndarray, y: np.ndarray,
                  inv_texel: float, out: np.ndarray) -> None:
     """Bilinear samples of one level of a packed pyramid (the fixed-level case of :func:`mip_sample`, without

@@ -15,13 +15,13 @@ import math
 import numba
 import numpy as np
 
-_NJIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+from pipeline.sim.jit import NJIT
 
-# label values (the renderer's LABEL_*), repeated here so that the kernel needs no import from render
-_SOIL, _SKY, _LEAF, _CANOPY, _TREES = 1, 0, 2, 3, 4
+#: what a pixel shows (``Trace.label``, the exported ground-truth labels); ``render`` re-exports these
+LABEL_SKY, LABEL_SOIL, LABEL_LEAF, LABEL_CANOPY, LABEL_TREES = 0, 1, 2, 3, 4
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def project_polygons(verts: np.ndarray, origin: np.ndarray, normal: np.ndarray, two_sided: np.ndarray,
                      R: np.ndarray, o: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
                      height: int, near_m: float, uv: np.ndarray, visible: np.ndarray, dist2: np.ndarray) -> None:
@@ -66,7 +66,7 @@ def project_polygons(verts: np.ndarray, origin: np.ndarray, normal: np.ndarray, 
         visible[k] = ok and u_hi >= -1.0 and u_lo <= width and w_hi >= -1.0 and w_lo <= height
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def raster_polygons(uv: np.ndarray, order: np.ndarray, buf: np.ndarray) -> None:
     """Fill polygons into an id raster in the given order (later ones overwrite earlier ones).
 
@@ -138,7 +138,7 @@ def raster_polygons(uv: np.ndarray, order: np.ndarray, buf: np.ndarray) -> None:
                     y0 += sy
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t: np.ndarray, label: np.ndarray,
                    canopy: np.ndarray, canopy_box: np.ndarray, tree_centre: np.ndarray, tree_radii: np.ndarray,
                    tree_profiles: np.ndarray, tree_top: np.ndarray, tree_k: np.ndarray, tree_arc: np.ndarray,
@@ -180,7 +180,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
         dy = float(dirs[r, 1])
         dz = float(dirs[r, 2])
         tr = float(t[r])
-        lab = _SOIL if math.isfinite(tr) else _SKY
+        lab = LABEL_SOIL if math.isfinite(tr) else LABEL_SKY
         is_canopy = False
         # far canopy plane
         if dz < 0.0:
@@ -192,7 +192,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
                 ey = pcy - oy
                 if x0 < pcx < x1 and y0 < pcy < y1 and ex * ex + ey * ey >= min_range * min_range:
                     tr = tc
-                    lab = _CANOPY
+                    lab = LABEL_CANOPY
                     is_canopy = True
         # tree lines: only rays reaching beyond the nearest possible tree
         tk = -1
@@ -212,7 +212,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
                 top = tree_profiles[k, i0] * (1.0 - fr) + tree_profiles[k, (i0 + 1) % n_prof] * fr
                 if zt <= top and zt >= -2.0 and tt < tr:
                     tr = tt
-                    lab = _TREES
+                    lab = LABEL_TREES
                     is_canopy = False
                     tk = k
                     tree_arc[r] = phi * rad
@@ -236,7 +236,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
                     if qx * qx + qy * qy + qz * qz <= reach * reach:
                         tr = th
                         pk = p
-                        lab = _CANOPY if poly_is_canopy[p] else _LEAF
+                        lab = LABEL_CANOPY if poly_is_canopy[p] else LABEL_LEAF
                         is_canopy = False
                         if tk >= 0:
                             tk = -1
@@ -247,7 +247,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
         canopy[r] = is_canopy
 
 
-@numba.njit(**_NJIT)
+@numba.njit(**NJIT)
 def max_vertex_distance(verts: np.ndarray, origin: np.ndarray, out: np.ndarray) -> None:
     """``out[k]``: largest distance (m) from ``origin[k]`` (N, 3) to a vertex of ``verts[k]`` (N, V, 3)."""
     for k in range(verts.shape[0]):
