@@ -30,6 +30,8 @@ _LONG_STEP_M = 2.0
 _LONG_HALF_M = 800.0
 _RELIEF_TEXEL_M = 0.02
 _RELIEF_SIZE = 512
+_INV_LONG_STEP = 1.0 / _LONG_STEP_M  # the kernels multiply by inverse texel sizes
+_INV_RELIEF_TEXEL = 1.0 / _RELIEF_TEXEL_M
 RELIEF_FADE_M = (8.0, 20.0)
 UNDULATION_FADE_M = (60.0, 150.0)
 _FADES = np.array([*UNDULATION_FADE_M, *RELIEF_FADE_M], np.float64)
@@ -96,8 +98,8 @@ class Terrain:
             wu = np.broadcast_to(np.asarray(weights[0], np.float32).reshape(-1), xf.shape)
             wr = np.broadcast_to(np.asarray(weights[1], np.float32).reshape(-1), xf.shape)
         out = np.empty((xf.size, 3), np.float32)
-        height_grad_points(self._long_k, *self._long_origin, _LONG_STEP_M, self._relief_k, _RELIEF_TEXEL_M, xf, yf, wu,
-                           wr, out)
+        height_grad_points(self._long_k, *self._long_origin, _INV_LONG_STEP, self._relief_k, _INV_RELIEF_TEXEL, xf, yf,
+                           wu, wr, out)
         return out[:, 0].reshape(shape), out[:, 1].reshape(shape), out[:, 2].reshape(shape)
 
     @staticmethod
@@ -142,7 +144,7 @@ class Terrain:
         use_lod = ref_xy is not None
         rx, ry = (float(ref_xy[0]), float(ref_xy[1])) if use_lod else (0.0, 0.0)
         guess = np.full(d.shape[0], np.nan) if guess is None else np.ascontiguousarray(guess, np.float64).reshape(-1)
-        intersect_rays(self._long_k, *self._long_origin, _LONG_STEP_M, self._relief_k, _RELIEF_TEXEL_M, self.h_min,
+        intersect_rays(self._long_k, *self._long_origin, _INV_LONG_STEP, self._relief_k, _INV_RELIEF_TEXEL, self.h_min,
                        self.h_max, np.asarray(origin, np.float64), d, float(t_max), int(iterations), rx, ry, use_lod,
                        _FADES, guess, float(tol), out)
         shape = dirs.shape[:-1]

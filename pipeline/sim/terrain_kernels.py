@@ -23,7 +23,10 @@ from pipeline.sim.jit import NJIT
 
 def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The grids as the kernels read them: ``long`` with a one-texel zero border on every side, ``relief`` with
-    its first row and column repeated after the last (so neither lookup needs a branch per corner)."""
+    its first row and column repeated after the last (so neither lookup needs a branch per corner). The relief's
+    sides must be powers of two (its period is taken with a bit mask)."""
+    if any(n & (n - 1) for n in relief.shape[:2]):
+        raise ValueError(f"relief grid sides must be powers of two, got {relief.shape[:2]}")
     long_p = np.zeros((long.shape[0] + 2, long.shape[1] + 2, 3), np.float32)
     long_p[1:-1, 1:-1] = long
     relief_p = np.concatenate([relief, relief[:1]], 0)
@@ -31,78 +34,84 @@ def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndar
     return long_p, relief_p
 
 
+@numba.njit(inline="always", **NJIT)
+def _height_grad(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, relief: np.ndarray,
+                 inv_rtexel: float, xk: float, yk: float, wuk: float, wrk: float) -> tuple[float, float, float]:
+    """``(h, dh/dx, dh/dy)`` at one field point (grids and weights as in :func:`height_grad_points`); inlined
+    into its callers, so the grids are not passed per point. (Multiplications by the inverse texel sizes and a
+    bit mask for the relief's period: divisions made this lookup 1.7× slower.)"""
+    lw = long.shape[1] - 2
+    lh = long.shape[0] - 2
+    mask_w = relief.shape[1] - 2  # the period minus one (a power of two, see pad_grids)
+    mask_h = relief.shape[0] - 2
+    h = hx = hy = 0.0
+    ul = (xk - lx0) * inv_lstep
+    vl = (yk - ly0) * inv_lstep
+    fu = math.floor(ul)
+    fv = math.floor(vl)
+    if wuk > 0.0 and fu >= -1.0 and fv >= -1.0 and fu < lw and fv < lh:  # zero beyond the grid
+        j = int(fu) + 1
+        i = int(fv) + 1
+        a = ul - fu
+        b = vl - fv
+        w00 = (1.0 - a) * (1.0 - b) * wuk
+        w01 = a * (1.0 - b) * wuk
+        w10 = (1.0 - a) * b * wuk
+        w11 = a * b * wuk
+        h = w00 * long[i, j, 0] + w01 * long[i, j + 1, 0] + w10 * long[i + 1, j, 0] + w11 * long[i + 1, j + 1, 0]
+        hx = w00 * long[i, j, 1] + w01 * long[i, j + 1, 1] + w10 * long[i + 1, j, 1] + w11 * long[i + 1, j + 1, 1]
+        hy = w00 * long[i, j, 2] + w01 * long[i, j + 1, 2] + w10 * long[i + 1, j, 2] + w11 * long[i + 1, j + 1, 2]
+    if wrk > 0.0 and math.isfinite(xk) and math.isfinite(yk):  # periodic
+        ur = xk * inv_rtexel - 0.5
+        vr = yk * inv_rtexel - 0.5
+        fu = math.floor(ur)
+        fv = math.floor(vr)
+        a = ur - fu
+        b = vr - fv
+        j = int(fu) & mask_w  # periodic index (two's complement: also for negative fu)
+        i = int(fv) & mask_h
+        w00 = (1.0 - a) * (1.0 - b) * wrk
+        w01 = a * (1.0 - b) * wrk
+        w10 = (1.0 - a) * b * wrk
+        w11 = a * b * wrk
+        h += w00 * relief[i, j, 0] + w01 * relief[i, j + 1, 0] + w10 * relief[i + 1, j, 0] + \
+            w11 * relief[i + 1, j + 1, 0]
+        hx += w00 * relief[i, j, 1] + w01 * relief[i, j + 1, 1] + w10 * relief[i + 1, j, 1] + \
+            w11 * relief[i + 1, j + 1, 1]
+        hy += w00 * relief[i, j, 2] + w01 * relief[i, j + 1, 2] + w10 * relief[i + 1, j, 2] + \
+            w11 * relief[i + 1, j + 1, 2]
+    return h, hx, hy
+
+
 @numba.njit(**NJIT)
-def height_grad_points(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
-                       x: np.ndarray, y: np.ndarray, wu: np.ndarray, wr: np.ndarray, out: np.ndarray) -> None:
+def height_grad_points(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, relief: np.ndarray,
+                       inv_rtexel: float, x: np.ndarray, y: np.ndarray, wu: np.ndarray, wr: np.ndarray,
+                       out: np.ndarray) -> None:
     """``out[k, :3] = (h, dh/dx, dh/dy)`` at field points ``(x[k], y[k])`` (1-D float arrays, metres), the
     undulation weighted by ``wu[k]`` and the relief by ``wr[k]`` (level of detail).
 
     ``long`` and ``relief`` are the padded grids of :func:`pad_grids`; ``long``'s texel (0, 0) sits at
-    ``(lx0, ly0)`` in the unpadded grid, ``lstep`` metres apart; the relief's texel is ``rtexel`` metres. (One loop
-    with the lookups written out: a helper taking the grids per point would cost more than the lookup itself.)
+    ``(lx0, ly0)`` in the unpadded grid, ``1 / inv_lstep`` metres apart; the relief's texel is ``1 / inv_rtexel``
+    metres.
     """
-    lw = long.shape[1] - 2
-    lh = long.shape[0] - 2
-    m_w = relief.shape[1] - 1
-    m_h = relief.shape[0] - 1
     for k in range(x.size):
-        xk = float(x[k])
-        yk = float(y[k])
-        h = hx = hy = 0.0
-        wuk = float(wu[k])
-        wrk = float(wr[k])
-        ul = (xk - lx0) / lstep
-        vl = (yk - ly0) / lstep
-        fu = math.floor(ul)
-        fv = math.floor(vl)
-        if wuk > 0.0 and fu >= -1.0 and fv >= -1.0 and fu < lw and fv < lh:  # zero beyond the grid
-            j = int(fu) + 1
-            i = int(fv) + 1
-            a = ul - fu
-            b = vl - fv
-            w00 = (1.0 - a) * (1.0 - b) * wuk
-            w01 = a * (1.0 - b) * wuk
-            w10 = (1.0 - a) * b * wuk
-            w11 = a * b * wuk
-            h = w00 * long[i, j, 0] + w01 * long[i, j + 1, 0] + w10 * long[i + 1, j, 0] + w11 * long[i + 1, j + 1, 0]
-            hx = w00 * long[i, j, 1] + w01 * long[i, j + 1, 1] + w10 * long[i + 1, j, 1] + \
-                w11 * long[i + 1, j + 1, 1]
-            hy = w00 * long[i, j, 2] + w01 * long[i, j + 1, 2] + w10 * long[i + 1, j, 2] + \
-                w11 * long[i + 1, j + 1, 2]
-        if wrk > 0.0 and math.isfinite(xk) and math.isfinite(yk):  # periodic
-            ur = xk / rtexel - 0.5
-            vr = yk / rtexel - 0.5
-            fu = math.floor(ur)
-            fv = math.floor(vr)
-            a = ur - fu
-            b = vr - fv
-            j = int(fu - m_w * math.floor(fu / m_w))
-            i = int(fv - m_h * math.floor(fv / m_h))
-            w00 = (1.0 - a) * (1.0 - b) * wrk
-            w01 = a * (1.0 - b) * wrk
-            w10 = (1.0 - a) * b * wrk
-            w11 = a * b * wrk
-            h += w00 * relief[i, j, 0] + w01 * relief[i, j + 1, 0] + w10 * relief[i + 1, j, 0] + \
-                w11 * relief[i + 1, j + 1, 0]
-            hx += w00 * relief[i, j, 1] + w01 * relief[i, j + 1, 1] + w10 * relief[i + 1, j, 1] + \
-                w11 * relief[i + 1, j + 1, 1]
-            hy += w00 * relief[i, j, 2] + w01 * relief[i, j + 1, 2] + w10 * relief[i + 1, j, 2] + \
-                w11 * relief[i + 1, j + 1, 2]
+        h, hx, hy = _height_grad(long, lx0, ly0, inv_lstep, relief, inv_rtexel, float(x[k]), float(y[k]), float(wu[k]),
+                                 float(wr[k]))
         out[k, 0] = h
         out[k, 1] = hx
         out[k, 2] = hy
 
 
 @numba.njit(**NJIT)
-def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relief: np.ndarray, rtexel: float,
-                   h_min: float, h_max: float, origin: np.ndarray, dirs: np.ndarray, t_max: float, iterations: int,
-                   ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, guess: np.ndarray, tol: float,
-                   out: np.ndarray) -> None:
+def intersect_rays(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, relief: np.ndarray,
+                   inv_rtexel: float, h_min: float, h_max: float, origin: np.ndarray, dirs: np.ndarray, t_max: float,
+                   iterations: int, ref_x: float, ref_y: float, use_lod: bool, fades: np.ndarray, guess: np.ndarray,
+                   tol: float, out: np.ndarray) -> None:
     """First ground hit of rays ``origin + t · dirs[k]`` (see :meth:`pipeline.sim.terrain.Terrain.intersect`):
     Newton steps kept inside the slab ``[h_min, h_max]``, from the hit with the plane z = 0 or from a guess.
 
     Args:
-        long, lx0, ly0, lstep, relief, rtexel: the terrain grids, as in :func:`height_grad_points`.
+        long, lx0, ly0, inv_lstep, relief, inv_rtexel: the terrain grids, as in :func:`height_grad_points`.
         origin: (3,) float64 ray origin, field frame, metres.
         dirs: (N, 3) float32 directions.
         iterations: Newton steps (the most, for rays with a guess).
@@ -169,8 +178,8 @@ def intersect_rays(long: np.ndarray, lx0: float, ly0: float, lstep: float, relie
             py[a] = oy + t[m] * float(dirs[k, 1])
             wu[a] = wu_all[m]
             wr[a] = wr_all[m]
-        height_grad_points(long, lx0, ly0, lstep, relief, rtexel, px[:n_act], py[:n_act], wu[:n_act], wr[:n_act],
-                           hg[:n_act])
+        height_grad_points(long, lx0, ly0, inv_lstep, relief, inv_rtexel, px[:n_act], py[:n_act], wu[:n_act],
+                           wr[:n_act], hg[:n_act])
         keep = 0
         for a in range(n_act):
             m = active[a]
