@@ -111,3 +111,51 @@ def test_image_intersection_converges_like_many_newton_steps(terrain: Terrain) -
     assert ok.mean() > 0.5
     err = np.abs(got[ok] - ref[ok])
     assert np.mean(err > 1e-3) < 0.005
+
+
+def test_leaf_shadow_lookup_is_exact_bilinear_with_soft_edge() -> None:
+    """The shadow-map lookup against scipy's bilinear interpolation: blocked where the leaf above casts the
+    shadow, free below it and outside the map, a 1 cm soft edge in height."""
+    from scipy.ndimage import map_coordinates
+
+    from pipeline.sim.ground_kernels import atlas_occlusion
+
+    rng = np.random.default_rng(5)
+    amap = rng.uniform(0.0, 0.6, (40, 50)).astype(np.float32)
+    corner, texel = np.array([3.0, -2.0]), 0.01
+    disp = np.array([0.3, -0.2])
+    n = 4000
+    px = rng.uniform(2.9, 3.6, n)
+    py = rng.uniform(-2.1, -1.5, n)
+    hz = rng.uniform(0.0, 0.2, n)
+    pz = rng.uniform(0.0, 0.6, n)
+    out = np.empty(n, np.float32)
+    atlas_occlusion(amap, corner, disp, texel, px, py, pz, hz, 0.0, out)
+    u = (px + hz * disp[0] - corner[0]) / texel - 0.5
+    v = (py + hz * disp[1] - corner[1]) / texel - 0.5
+    inside = (u >= 0) & (v >= 0) & (u < amap.shape[1] - 1) & (v < amap.shape[0] - 1)
+    occ = map_coordinates(amap.astype(np.float64), [v, u], order=1)
+    ref = np.where(inside, np.clip((occ - pz) / 0.01, 0, 1), 0.0)
+    assert 0.1 < inside.mean() < 0.9 and 0.05 < (ref == 1).mean() and 0.05 < (ref == 0).mean()
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+
+
+def test_soil_under_the_rows_is_shaded_with_the_sun_overhead() -> None:
+    """Sun straight overhead: soil under a canopy row gets no sun (row shadow, beyond the shadow-map range) and
+    the ambient light of the occluded strip; soil halfway between rows gets the full sun on flat ground."""
+    from pipeline.sim.ground_kernels import soil_radiance
+
+    s, hc, w = 0.52, 0.4, 0.15
+    rows = np.array([s, hc, w, -0.26, 10 * s, 0.0, 30.0])
+    x = np.array([2 * s, 2.5 * s, 3 * s])  # under row 2, between rows 2 and 3, under row 3
+    n = x.size
+    idx = np.arange(n)
+    out = np.zeros((n, 3), np.float32)
+    soil_radiance(idx, x, np.full(n, 10.0), np.full(n, 30.0, np.float32), np.zeros(n, np.float32),
+                  np.zeros(n, np.float32), np.tile(np.array([[0.2, 0.3, 0.4, 0.0, 0.0]], np.float32), (n, 1)),
+                  np.ones(n, np.float32), np.ones(n, np.float32), np.zeros((1, 1), np.float32), np.zeros(2), 0.01,
+                  7.0, rows, np.array([0.0, 0.0, 1.0]), 3.0, out)
+    ambient_under = 1.0 * (1.0 - 0.45)  # (0.55 + 0.45 · 1) · ao, ao at the row centre
+    np.testing.assert_allclose(out[[0, 2], 1] / 0.3, ambient_under, rtol=1e-5)
+    ao_between = 1.0 - 0.45 * np.exp(-(0.5 * s / (0.8 * w)) ** 2)
+    np.testing.assert_allclose(out[1, 1] / 0.3, ao_between + 3.0, rtol=1e-5)

@@ -36,7 +36,8 @@ import numpy as np
 from msckf.camera import PinholeRadtan, StereoRig
 from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RenderConfig
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
-from pipeline.sim.noise import MipTexture, fbm, remap_points, sample_level, smooth_noise_1d
+from pipeline.sim.ground_kernels import atlas_occlusion, soil_footprints, soil_radiance
+from pipeline.sim.noise import MipTexture, fbm, sample_level, smooth_noise_1d
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords, sensor_digitise, sensor_linear
 from pipeline.sim.trace_kernels import (LABEL_CANOPY, LABEL_LEAF, LABEL_SKY, LABEL_SOIL, LABEL_TREES,
@@ -50,6 +51,7 @@ LABEL_NAMES = {LABEL_SKY: "sky", LABEL_SOIL: "soil", LABEL_LEAF: "leaf", LABEL_C
 T_MAX_M = 4000.0
 NEAR_M = 0.05
 _F32 = np.float32
+_NO_ATLAS = np.zeros((1, 1), np.float32)  # the shadow-map argument of a frame without one
 
 
 @dataclass
@@ -300,33 +302,9 @@ class FieldRenderer:
             return out
         amap, corner = atlas
         disp = -self.sky.sun_dir[:2] / max(self.sky.sun_dir[2], 0.05)
-        u = (px + hz * _F32(disp[0]) - _F32(corner[0])) / _F32(SHADOW_TEXEL_M) - 0.5
-        v = (py + hz * _F32(disp[1]) - _F32(corner[1])) / _F32(SHADOW_TEXEL_M) - 0.5
-        inside = (u >= 0) & (v >= 0) & (u < amap.shape[1] - 1) & (v < amap.shape[0] - 1)
-        if np.any(inside):
-            occ = remap_points(amap, u[inside], v[inside], wrap=False)
-            out[inside] = np.clip((occ - pz[inside] - _F32(tol)) / _F32(0.01), 0.0, 1.0)
+        atlas_occlusion(amap, np.asarray(corner, np.float64), np.asarray(disp, np.float64), SHADOW_TEXEL_M, px, py,
+                        pz, hz, float(tol), out)
         return out
-
-    def _row_shadow(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Analytic canopy shadow and ambient occlusion of ground points between rows: (shadow, ao), (N,)."""
-        s = _F32(self.cfg_field.row_spacing_m)
-        hc = self.field.canopy_height()
-        w = float(self.field.canopy_half_width(np.array(hc)))
-        x0, x1, y0, y1 = self.field.row_extent
-        sd = self.sky.sun_dir
-        shadow = np.zeros(px.shape, np.float32)
-        for frac in (0.2, 0.45, 0.7):
-            z = frac * hc
-            qx = px + _F32(z * sd[0] / max(sd[2], 0.05))
-            qy = py + _F32(z * sd[1] / max(sd[2], 0.05))
-            d = np.abs(qx - s * np.round(qx / s))
-            occ = (d < w * (1 - frac)) & (qy > y0) & (qy < y1) & (qx > x0) & (qx < x1)
-            shadow += occ.astype(np.float32) * _F32(1 / 3)
-        d0 = np.abs(px - s * np.round(px / s))
-        inrows = (py > y0) & (py < y1) & (px > x0) & (px < x1)
-        ao = 1.0 - _F32(0.45) * np.exp(-(d0 / _F32(0.8 * w)) ** 2) * inrows
-        return shadow, ao.astype(np.float32)
 
     # ---- main entry --------------------------------------------------------------------------------------------------
     def render_frame(self, T_F_imu: np.ndarray, t_s: float, exposure: float, sun_e: float, noise_left: np.ndarray,
@@ -527,42 +505,27 @@ class FieldRenderer:
 
     def _shade_soil(self, bundle: RayBundle, o: np.ndarray, tr: Trace, soil: np.ndarray, sun_e: float, atlas,
                     out: np.ndarray) -> None:
-        """Shade the soil pixels of ``out`` (H, W, 3) in place (computed on the soil pixels only, per-pixel
-        trilinear textures)."""
+        """Shade the soil pixels of ``out`` (H, W, 3) in place (per-pixel trilinear textures; the lighting model
+        in :func:`pipeline.sim.ground_kernels.soil_radiance`)."""
         idx = np.flatnonzero(soil)
-        d = tr.dirs.reshape(-1, 3)[idx]
-        tt = tr.t.reshape(-1)[idx]
-        norm = bundle.ray_norm.reshape(-1)[idx]
-        px = _F32(o[0]) + tt * d[:, 0]
-        py = _F32(o[1]) + tt * d[:, 1]
-        cos_inc = np.maximum(-d[:, 2] / norm, _F32(0.02))
-        dist = tt * norm
-        lod_m = np.log2(np.maximum(dist * _F32(bundle.pixel_angle) / np.sqrt(cos_inc), _F32(1e-6)))
+        n = idx.size
+        px = np.empty(n, np.float64)
+        py = np.empty(n, np.float64)
+        dist = np.empty(n, np.float32)
+        lod_m = np.empty(n, np.float32)
+        soil_footprints(tr.dirs.reshape(-1, 3), tr.t.reshape(-1), bundle.ray_norm.reshape(-1), idx, float(o[0]),
+                        float(o[1]), float(bundle.pixel_angle), px, py, dist, lod_m)
         st = self.soil
         surf = st.surface.sample_lod(px, py, lod_m - _F32(np.log2(st.surface.texel_m)))
         grain = st.grain.sample_lod(px, py, lod_m - _F32(np.log2(st.grain.texel_m)), max_level=4)
         large = st.large.sample_lod(px, py, 1.0)  # one mip level (bilinear)
-        gx = tr.hgx.reshape(-1)[idx] + surf[:, 3]
-        gy = tr.hgy.reshape(-1)[idx] + surf[:, 4]
-        inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
-        sd = self.sky.sun_dir
-        lam = np.maximum((_F32(sd[2]) - gx * _F32(sd[0]) - gy * _F32(sd[1])) * inv, 0)
-        shadow = np.zeros_like(tt)
-        ao = np.ones_like(tt)
-        rng_m = self.cfg_render.shadow_range_m
-        near = dist < rng_m
-        if near.any():
-            z0 = np.zeros(int(near.sum()), np.float32)
-            shadow[near] = self._shadow(atlas, px[near], py[near], z0, z0, 0.01)
-        in_rows = (px > -1.0) & (px < self.field.row_extent[1] + 1.0) & (py > -1.0) & \
-            (py < self.field.row_extent[3] + 1.0)
-        if in_rows.any():
-            rs, ao_r = self._row_shadow(px[in_rows], py[in_rows])
-            blend = np.clip(dist[in_rows] - _F32(rng_m - 1.0), 0, 1)
-            shadow[in_rows] = shadow[in_rows] * (1 - blend) + rs * blend
-            ao[in_rows] = ao_r
-        irr = (_F32(0.55) + _F32(0.45) * inv) * ao + _F32(sun_e) * lam * (1 - shadow)
-        out.reshape(-1, 3)[idx] = surf[:, :3] * (grain * large * irr)[:, None]
+        amap, corner = atlas if atlas is not None else (_NO_ATLAS, np.zeros(2))
+        hc = self.field.canopy_height()
+        rows = np.array([self.cfg_field.row_spacing_m, hc, float(self.field.canopy_half_width(np.array(hc))),
+                         *self.field.row_extent], np.float64)
+        soil_radiance(idx, px, py, dist, tr.hgx.reshape(-1)[idx], tr.hgy.reshape(-1)[idx], surf, grain, large, amap,
+                      np.asarray(corner, np.float64), SHADOW_TEXEL_M, float(self.cfg_render.shadow_range_m), rows,
+                      np.asarray(self.sky.sun_dir, np.float64), float(sun_e), out.reshape(-1, 3))
 
     def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
                      polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:

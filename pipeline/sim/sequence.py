@@ -54,7 +54,7 @@ from pipeline.sim.workers import FrameJob, RenderService
 from pipeline.sim.sensors import rotation_enu_field, simulate_gps, simulate_odometry
 from pipeline.sim.trajectory import RobotTrajectory
 
-SIM_VERSION = 3
+SIM_VERSION = 4
 #: Frames between a frame and the first frame whose exposure reacts to it (auto-exposure latency). It is also how
 #: many frames can be rendered at once, so it sets how well the render workers overlap (the images do not depend
 #: on the number of workers).

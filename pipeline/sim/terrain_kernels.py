@@ -34,55 +34,6 @@ def pad_grids(long: np.ndarray, relief: np.ndarray) -> tuple[np.ndarray, np.ndar
     return long_p, relief_p
 
 
-@numba.njit(inline="always", **NJIT)
-def _height_grad(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, relief: np.ndarray,
-                 inv_rtexel: float, xk: float, yk: float, wuk: float, wrk: float) -> tuple[float, float, float]:
-    """``(h, dh/dx, dh/dy)`` at one field point (grids and weights as in :func:`height_grad_points`); inlined
-    into its callers, so the grids are not passed per point. (Multiplications by the inverse texel sizes and a
-    bit mask for the relief's period: divisions made this lookup 1.7× slower.)"""
-    lw = long.shape[1] - 2
-    lh = long.shape[0] - 2
-    mask_w = relief.shape[1] - 2  # the period minus one (a power of two, see pad_grids)
-    mask_h = relief.shape[0] - 2
-    h = hx = hy = 0.0
-    ul = (xk - lx0) * inv_lstep
-    vl = (yk - ly0) * inv_lstep
-    fu = math.floor(ul)
-    fv = math.floor(vl)
-    if wuk > 0.0 and fu >= -1.0 and fv >= -1.0 and fu < lw and fv < lh:  # zero beyond the grid
-        j = int(fu) + 1
-        i = int(fv) + 1
-        a = ul - fu
-        b = vl - fv
-        w00 = (1.0 - a) * (1.0 - b) * wuk
-        w01 = a * (1.0 - b) * wuk
-        w10 = (1.0 - a) * b * wuk
-        w11 = a * b * wuk
-        h = w00 * long[i, j, 0] + w01 * long[i, j + 1, 0] + w10 * long[i + 1, j, 0] + w11 * long[i + 1, j + 1, 0]
-        hx = w00 * long[i, j, 1] + w01 * long[i, j + 1, 1] + w10 * long[i + 1, j, 1] + w11 * long[i + 1, j + 1, 1]
-        hy = w00 * long[i, j, 2] + w01 * long[i, j + 1, 2] + w10 * long[i + 1, j, 2] + w11 * long[i + 1, j + 1, 2]
-    if wrk > 0.0 and math.isfinite(xk) and math.isfinite(yk):  # periodic
-        ur = xk * inv_rtexel - 0.5
-        vr = yk * inv_rtexel - 0.5
-        fu = math.floor(ur)
-        fv = math.floor(vr)
-        a = ur - fu
-        b = vr - fv
-        j = int(fu) & mask_w  # periodic index (two's complement: also for negative fu)
-        i = int(fv) & mask_h
-        w00 = (1.0 - a) * (1.0 - b) * wrk
-        w01 = a * (1.0 - b) * wrk
-        w10 = (1.0 - a) * b * wrk
-        w11 = a * b * wrk
-        h += w00 * relief[i, j, 0] + w01 * relief[i, j + 1, 0] + w10 * relief[i + 1, j, 0] + \
-            w11 * relief[i + 1, j + 1, 0]
-        hx += w00 * relief[i, j, 1] + w01 * relief[i, j + 1, 1] + w10 * relief[i + 1, j, 1] + \
-            w11 * relief[i + 1, j + 1, 1]
-        hy += w00 * relief[i, j, 2] + w01 * relief[i, j + 1, 2] + w10 * relief[i + 1, j, 2] + \
-            w11 * relief[i + 1, j + 1, 2]
-    return h, hx, hy
-
-
 @numba.njit(**NJIT)
 def height_grad_points(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, relief: np.ndarray,
                        inv_rtexel: float, x: np.ndarray, y: np.ndarray, wu: np.ndarray, wr: np.ndarray,
@@ -92,11 +43,61 @@ def height_grad_points(long: np.ndarray, lx0: float, ly0: float, inv_lstep: floa
 
     ``long`` and ``relief`` are the padded grids of :func:`pad_grids`; ``long``'s texel (0, 0) sits at
     ``(lx0, ly0)`` in the unpadded grid, ``1 / inv_lstep`` metres apart; the relief's texel is ``1 / inv_rtexel``
-    metres.
+    metres. (One loop with the lookups written out: a helper per point, even an inlined one, made it slower;
+    so did divisions instead of the multiplications by inverse texel sizes and the bit mask for the period, and
+    signed indices, for which numba adds negative-index wrap-around to every load.)
     """
+    lw = long.shape[1] - 2
+    lh = long.shape[0] - 2
+    mask_w = relief.shape[1] - 2  # the period minus one (a power of two, see pad_grids)
+    mask_h = relief.shape[0] - 2
     for k in range(x.size):
-        h, hx, hy = _height_grad(long, lx0, ly0, inv_lstep, relief, inv_rtexel, float(x[k]), float(y[k]), float(wu[k]),
-                                 float(wr[k]))
+        xk = float(x[k])
+        yk = float(y[k])
+        h = hx = hy = 0.0
+        wuk = float(wu[k])
+        wrk = float(wr[k])
+        ul = (xk - lx0) * inv_lstep
+        vl = (yk - ly0) * inv_lstep
+        fu = math.floor(ul)
+        fv = math.floor(vl)
+        if wuk > 0.0 and fu >= -1.0 and fv >= -1.0 and fu < lw and fv < lh:  # zero beyond the grid
+            j = np.uint64(int(fu) + 1)
+            i = np.uint64(int(fv) + 1)
+            j1 = j + np.uint64(1)
+            i1 = i + np.uint64(1)
+            a = ul - fu
+            b = vl - fv
+            w00 = (1.0 - a) * (1.0 - b) * wuk
+            w01 = a * (1.0 - b) * wuk
+            w10 = (1.0 - a) * b * wuk
+            w11 = a * b * wuk
+            h = w00 * long[i, j, 0] + w01 * long[i, j1, 0] + w10 * long[i1, j, 0] + w11 * long[i1, j1, 0]
+            hx = w00 * long[i, j, 1] + w01 * long[i, j1, 1] + w10 * long[i1, j, 1] + \
+                w11 * long[i1, j1, 1]
+            hy = w00 * long[i, j, 2] + w01 * long[i, j1, 2] + w10 * long[i1, j, 2] + \
+                w11 * long[i1, j1, 2]
+        if wrk > 0.0 and math.isfinite(xk) and math.isfinite(yk):  # periodic
+            ur = xk * inv_rtexel - 0.5
+            vr = yk * inv_rtexel - 0.5
+            fu = math.floor(ur)
+            fv = math.floor(vr)
+            a = ur - fu
+            b = vr - fv
+            j = np.uint64(int(fu) & mask_w)
+            i = np.uint64(int(fv) & mask_h)
+            j1 = j + np.uint64(1)
+            i1 = i + np.uint64(1)
+            w00 = (1.0 - a) * (1.0 - b) * wrk
+            w01 = a * (1.0 - b) * wrk
+            w10 = (1.0 - a) * b * wrk
+            w11 = a * b * wrk
+            h += w00 * relief[i, j, 0] + w01 * relief[i, j1, 0] + w10 * relief[i1, j, 0] + \
+                w11 * relief[i1, j1, 0]
+            hx += w00 * relief[i, j, 1] + w01 * relief[i, j1, 1] + w10 * relief[i1, j, 1] + \
+                w11 * relief[i1, j1, 1]
+            hy += w00 * relief[i, j, 2] + w01 * relief[i, j1, 2] + w10 * relief[i1, j, 2] + \
+                w11 * relief[i1, j1, 2]
         out[k, 0] = h
         out[k, 1] = hx
         out[k, 2] = hy
@@ -127,7 +128,8 @@ def intersect_rays(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, r
     n_all = dirs.shape[0]
     ox, oy, oz = origin[0], origin[1], origin[2]
     u0, u1, r0, r1 = fades[0], fades[1], fades[2], fades[3]
-    down = np.empty(n_all, np.int64)  # only rays pointing down can meet the ground
+    # only rays pointing down can meet the ground (unsigned indices: no negative-index wrap-around per load)
+    down = np.empty(n_all, np.uint64)
     n = 0
     for k in range(n_all):
         out[k, 0] = np.inf
@@ -161,7 +163,7 @@ def intersect_rays(long: np.ndarray, lx0: float, ly0: float, inv_lstep: float, r
             guessed[m] = True
         t[m] = tk
     # Newton steps over the rays still active (compacted each step)
-    active = np.arange(n)
+    active = np.arange(n).astype(np.uint64)
     n_act = n
     px = np.empty(n)
     py = np.empty(n)
