@@ -159,3 +159,38 @@ def test_soil_under_the_rows_is_shaded_with_the_sun_overhead() -> None:
     np.testing.assert_allclose(out[[0, 2], 1] / 0.3, ambient_under, rtol=1e-5)
     ao_between = 1.0 - 0.45 * np.exp(-(0.5 * s / (0.8 * w)) ** 2)
     np.testing.assert_allclose(out[1, 1] / 0.3, ao_between + 3.0, rtol=1e-5)
+
+
+def test_glare_peaks_at_the_sun_and_haze_fades_far_surfaces_to_the_horizon() -> None:
+    """Glare: (0.35 + 0.06) · strength towards the sun, decreasing away from it, plus a ghost where placed. Haze:
+    none within 20 m and on the sky; beyond, the radiance tends to 1.1 × the horizon colour."""
+    from pipeline.sim.optics_kernels import glare_field, haze_and_glare
+
+    sun = np.array([0.0, 0.6, 0.8])
+    ang = np.radians([0.0, 2.0, 10.0, 60.0])
+    dirs = np.stack([np.zeros_like(ang), np.sin(np.arctan2(0.6, 0.8) + ang), np.cos(np.arctan2(0.6, 0.8) + ang)], 1)
+    dirs = (dirs * 2.0).astype(np.float32)  # any length: the kernel divides by it
+    norm = np.linalg.norm(dirs, axis=1).astype(np.float32)
+    cam = np.zeros((4, 3), np.float32)
+    cam[3, :2] = (0.5, -0.2)
+    g = np.empty(4, np.float32)
+    glare_field(dirs, norm, cam, sun, 2.0, np.zeros((0, 4)), g)
+    assert g[0] == pytest.approx(0.41 * 2.0, rel=1e-5) and np.all(np.diff(g) < 0)
+    g2 = np.empty(4, np.float32)
+    glare_field(dirs, norm, cam, sun, 2.0, np.array([[0.5, -0.2, 0.05, 0.7]]), g2)
+    np.testing.assert_allclose(g2 - g, [0, 0, 0, 0.7], atol=1e-6)
+
+    horizon = np.array([1.0, 1.1, 1.2], np.float32)
+    t = np.array([10.0, 100.0, 1e5, np.inf], np.float32)
+    rad = np.full((4, 3), 0.3, np.float32)
+    glare_rad = np.zeros(4, np.float32)
+    haze_and_glare(np.array([False, False, False, True]), t, np.ones(4, np.float32), 0.01, horizon,
+                   np.zeros(1, np.float32), False, rad, glare_rad)
+    e = np.exp(-1.0)
+    np.testing.assert_allclose(rad[[0, 3]], 0.3, rtol=1e-6)
+    np.testing.assert_allclose(rad[1], 0.3 * e + 1.1 * horizon * (1 - e), rtol=1e-5)
+    np.testing.assert_allclose(rad[2], 1.1 * horizon, rtol=1e-5)
+    haze_and_glare(np.ones(4, bool), t, np.ones(4, np.float32), 0.01, horizon, np.full(4, 0.5, np.float32), True,
+                   rad, glare_rad)
+    np.testing.assert_allclose(glare_rad, 0.5)
+    np.testing.assert_allclose(rad[0], 0.3 + 0.5 * np.array([1.0, 0.97, 0.9]), rtol=1e-6)

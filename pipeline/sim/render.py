@@ -38,6 +38,7 @@ from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, Rende
 from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.ground_kernels import atlas_occlusion, soil_footprints, soil_radiance
 from pipeline.sim.noise import MipTexture, fbm, sample_level, smooth_noise_1d
+from pipeline.sim.optics_kernels import glare_field, haze_and_glare
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords, sensor_digitise, sensor_linear
 from pipeline.sim.trace_kernels import (LABEL_CANOPY, LABEL_LEAF, LABEL_SKY, LABEL_SOIL, LABEL_TREES,
@@ -52,6 +53,7 @@ T_MAX_M = 4000.0
 NEAR_M = 0.05
 _F32 = np.float32
 _NO_ATLAS = np.zeros((1, 1), np.float32)  # the shadow-map argument of a frame without one
+_NO_GLARE = np.zeros(1, np.float32)  # the glare argument of an image without glare
 
 
 @dataclass
@@ -427,15 +429,9 @@ class FieldRenderer:
         sky = tr.label == LABEL_SKY
         if sky.any():
             self._shade_sky(bundle, tr.dirs, sky, o, t_s, sun_e, rad)
-        dist = flat_t * norm_d
-        far = np.flatnonzero((tr.label.reshape(-1) != LABEL_SKY) & (dist > 20.0))
-        if far.size:
-            e = np.exp(-dist[far] * _F32(self.cfg_light.haze / 3000.0))[:, None]
-            flat[far] = flat[far] * e + self.sky.horizon[None] * _F32(1.1) * (1 - e)
         g = self._glare(bundle, tr.dirs, T_F_rect[:3, :3], sun_e)
-        if g is not None:
-            rad += g[..., None] * np.array([1.0, 0.97, 0.9], np.float32)
-            glare_rad += g.reshape(-1)
+        haze_and_glare(sky.reshape(-1), flat_t, norm_d, float(self.cfg_light.haze / 3000.0), self.sky.horizon,
+                       _NO_GLARE if g is None else g.reshape(-1), g is not None, flat, glare_rad)
         return rad, glare_rad.reshape(H, W)
 
     def _camera(self, view: CameraView, rad: np.ndarray, exposure: float, noise: np.ndarray, gain: float,
@@ -565,25 +561,21 @@ class FieldRenderer:
         return out, glare
 
     def _glare(self, bundle: RayBundle, dirs: np.ndarray, R: np.ndarray, sun_e: float) -> np.ndarray | None:
-        """Veiling glare + flare ghosts (H, W) radiance, or None when negligible (sun well behind the camera)."""
+        """Veiling glare + flare ghosts (H, W) radiance, or None when negligible (sun well behind the camera);
+        the model is :func:`pipeline.sim.optics_kernels.glare_field`."""
         strength = self.cfg_light.glare * sun_e / 3.0
         s_cam = np.asarray(R, np.float64).T @ self.sky.sun_dir
         if strength <= 0 or s_cam[2] < -0.3:
             return None
-        sd = self.sky.sun_dir.astype(np.float32)
-        cosang = (dirs[..., 0] * sd[0] + dirs[..., 1] * sd[1] + dirs[..., 2] * sd[2]) / bundle.ray_norm
-        ang2 = np.maximum(2 * (1 - cosang), 0)  # ≈ angle² near the sun
-        g = (_F32(0.35) / (1 + ang2 / _F32(0.0025)) + _F32(0.06) * np.exp(-np.sqrt(ang2) / _F32(0.3))) * \
-            _F32(strength)
+        ghosts = np.zeros((0, 4))
         if s_cam[2] > 0.3:  # sun within ≈70° of the optical axis: ghosts on the line through the image centre
             # ghost positions in rectified-normalised coordinates, so both bundles of a camera agree
             sx, sy = s_cam[0] / s_cam[2], s_cam[1] / s_cam[2]
-            cam_rays = bundle.rays
             axis_w = float(np.clip((s_cam[2] - 0.3) / 0.5, 0, 1))
-            for f, rad, amp in ((-0.4, 0.063, 0.05), (-0.85, 0.108, 0.03), (-1.3, 0.04, 0.07)):
-                gx, gy = sx * f, sy * f
-                r2 = ((cam_rays[..., 0] - _F32(gx)) ** 2 + (cam_rays[..., 1] - _F32(gy)) ** 2) / _F32(rad ** 2)
-                near = r2 < 4.0
-                if near.any():
-                    g[near] += _F32(amp * strength * axis_w) * np.exp(-r2[near] ** 2)
+            ghosts = np.array([[sx * f, sy * f, rad, amp * strength * axis_w]
+                               for f, rad, amp in ((-0.4, 0.063, 0.05), (-0.85, 0.108, 0.03), (-1.3, 0.04, 0.07))])
+        H, W = dirs.shape[:2]
+        g = np.empty((H, W), np.float32)
+        glare_field(dirs.reshape(-1, 3), bundle.ray_norm.reshape(-1), bundle.rays.reshape(-1, 3),
+                    np.asarray(self.sky.sun_dir, np.float64), float(strength), ghosts, g.reshape(-1))
         return g
