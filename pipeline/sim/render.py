@@ -379,13 +379,13 @@ class FieldRenderer:
         tree_z = np.zeros(n, np.float32)
         pk = np.empty(n, np.int32)
         tab = polys.table if polys.table is not None else poly_table(polys)
-        pid = ids[bundle.raster_y, bundle.raster_x].reshape(-1)
         trace_surfaces(dirs.reshape(-1, 3), bundle.ray_norm.reshape(-1), o, t.reshape(-1), label.reshape(-1),
                        canopy.reshape(-1),
                        np.array([self.field.canopy_height(), x0, x1, y0, y1, PRISM1_RANGE_M], np.float64),
                        self.centre, np.asarray(self.tree_radii, np.float64), self.tree_profiles,
                        self.tree_top, tree_k, tree_arc,
-                       tree_z, pid, tab, (polys.origin - o).astype(np.float32), polys.material == MAT_CANOPY,
+                       tree_z, ids, bundle.raster_x.reshape(-1), bundle.raster_y.reshape(-1), tab,
+                       (polys.origin - o).astype(np.float32), polys.material == MAT_CANOPY,
                        float(bundle.pixel_angle), NEAR_M, pk)
         trees = []
         for k in range(len(self.tree_radii)):
@@ -417,10 +417,7 @@ class FieldRenderer:
                 np.sqrt(np.maximum(-fd[cpl, 2] / norm_d[cpl], 0.03))
             flat[cpl] = self.foliage.sample(px * 7.3, py, fp) * _F32(0.75 + sun_e * 0.6 * self.sky.sun_dir[2])
         if tr.poly_px.size:
-            r, g = self._shade_polys(bundle, o, fd[tr.poly_px], flat_t[tr.poly_px], norm_d[tr.poly_px], polys,
-                                     tr.poly_k, sun_e, atlas)
-            flat[tr.poly_px] = r
-            glare_rad[tr.poly_px] += g
+            self._shade_polys(bundle, o, tr, polys, sun_e, atlas, flat, glare_rad)
         for sel, arc, zt, k in tr.trees:
             if sel.size:
                 fp = flat_t[sel] * norm_d[sel] * bundle.pixel_angle
@@ -523,18 +520,17 @@ class FieldRenderer:
                       np.asarray(corner, np.float64), SHADOW_TEXEL_M, float(self.cfg_render.shadow_range_m), rows,
                       np.asarray(self.sky.sun_dir, np.float64), float(sun_e), out.reshape(-1, 3))
 
-    def _shade_polys(self, bundle: RayBundle, o: np.ndarray, d: np.ndarray, t: np.ndarray, norm_d: np.ndarray,
-                     polys: PolySet, k: np.ndarray, sun_e: float, atlas) -> tuple[np.ndarray, np.ndarray]:
-        """Radiance (N, 3) and glare radiance (N,) of polygon pixels with rays ``d`` and depths ``t``
-        (lighting model in :mod:`pipeline.sim.shade_kernels`)."""
+    def _shade_polys(self, bundle: RayBundle, o: np.ndarray, tr: Trace, polys: PolySet, sun_e: float, atlas,
+                     rad: np.ndarray, glare_rad: np.ndarray) -> None:
+        """Radiance of the polygon pixels of a trace into ``rad`` (H·W, 3), their glare radiance added to
+        ``glare_rad`` (H·W,) (lighting model in :mod:`pipeline.sim.shade_kernels`)."""
         tab = polys.table if polys.table is not None else poly_table(polys)
-        n = len(t)
-        d = np.ascontiguousarray(d, np.float32)
-        t = np.ascontiguousarray(t, np.float32)
-        norm_d = np.ascontiguousarray(norm_d, np.float32)
-        coords = np.empty((n, 3), np.float32)
-        poly_surface_coords(d, t, norm_d, k, tab, (polys.origin - o).astype(np.float32), float(bundle.pixel_angle),
-                            coords)
+        k = tr.poly_k
+        n = k.size
+        fd, ft, fn = tr.dirs.reshape(-1, 3), tr.t.reshape(-1), bundle.ray_norm.reshape(-1)
+        coords = np.empty((n, 6), np.float32)
+        poly_surface_coords(fd, ft, fn, tr.poly_px, k, tab, (polys.origin - o).astype(np.float32),
+                            np.asarray(o, np.float64), float(bundle.pixel_angle), coords)
         a, b, fp = coords[:, 0], coords[:, 1], coords[:, 2]
         canopy_poly = polys.material == MAT_CANOPY
         leaf = ~canopy_poly[k]
@@ -546,19 +542,15 @@ class FieldRenderer:
             # one leaf-noise level for the frame's leaves (their median footprint)
             lvl = int(np.clip(np.round(np.log2(max(float(np.median(fp[li])), 1e-6) / self.leaf_noise.texel_m)), 0, 6))
             tex[li, 0] = sample_level(self.leaf_noise, a[li] + 7.1 * ex, b[li] + 3.3 * ex, lvl)
-            pz = _F32(o[2]) + t[li] * d[li, 2]
-            shadow[li] = self._shadow(atlas, _F32(o[0]) + t[li] * d[li, 0], _F32(o[1]) + t[li] * d[li, 1], pz,
-                                      pz - tab[k[li], _GROUND], 0.03)
+            pz = coords[li, 5]
+            shadow[li] = self._shadow(atlas, coords[li, 3], coords[li, 4], pz, pz - tab[k[li], _GROUND], 0.03)
         if not leaf.all():
             ci = np.flatnonzero(~leaf)
             var = tab[k[ci], _EXTRA]
             tex[ci] = self.foliage.sample(a[ci] + 13.7 * var, b[ci] + 5.1 * var, fp[ci])
-        out = np.empty((n, 3), np.float32)
-        glare = np.empty(n, np.float32)
-        poly_radiance(d, t, norm_d, k, tab, polys.material == MAT_LEAF, canopy_poly, coords, tex, shadow, float(o[2]),
-                      np.asarray(self.sky.sun_dir, np.float64), float(sun_e), float(self.cfg_field.plant_height_m),
-                      float(self.cfg_light.leaf_gloss), out, glare)
-        return out, glare
+        poly_radiance(fd, ft, fn, tr.poly_px, k, tab, polys.material == MAT_LEAF, canopy_poly, coords, tex, shadow,
+                      float(o[2]), np.asarray(self.sky.sun_dir, np.float64), float(sun_e),
+                      float(self.cfg_field.plant_height_m), float(self.cfg_light.leaf_gloss), rad, glare_rad)
 
     def _glare(self, bundle: RayBundle, dirs: np.ndarray, R: np.ndarray, sun_e: float) -> np.ndarray | None:
         """Veiling glare + flare ghosts (H, W) radiance, or None when negligible (sun well behind the camera);

@@ -6,9 +6,10 @@ Two passes around the texture and shadow lookups, which stay with their own samp
 2. :func:`poly_radiance`: the lighting model (two-sided normals, folded and arched leaf shading normals, sun with
    leaf translucency and glossy highlights, ambient with height occlusion; canopy prisms with a darker base).
 
-Per pixel ``i``: ray ``d[i]`` (field frame, rectified z = 1) of length ``norm_d[i]``, depth ``t[i]`` and polygon
-``k[i]`` of the table ``tab`` (``render.poly_table`` columns: e1 0-2, e2 3-5, normal 6-8, albedo 9-11, size 12,
-extra 13, ground 14). Arithmetic is float64 per pixel; results are float32.
+Polygon pixel ``i`` is pixel ``q = pix[i]`` of a flattened bundle: ray ``d[q]`` (field frame, rectified z = 1)
+of length ``norm_d[q]``, depth ``t[q]``; it shows polygon ``k[i]`` of the table ``tab`` (``render.poly_table``
+columns: e1 0-2, e2 3-5, normal 6-8, albedo 9-11, size 12, extra 13, ground 14). Arithmetic is float64 per
+pixel; results are float32.
 """
 
 from __future__ import annotations
@@ -22,34 +23,45 @@ from pipeline.sim.jit import NJIT
 
 
 @numba.njit(**NJIT)
-def poly_surface_coords(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
-                        orel: np.ndarray, pixel_angle: float, out: np.ndarray) -> None:
-    """``out[i] = (a, b, footprint)``: hit point in the polygon's texture axes (metres from its origin along e1,
-    e2) and the pixel's footprint on it (metres; grows as the view becomes grazing).
+def poly_surface_coords(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, pix: np.ndarray, k: np.ndarray,
+                        tab: np.ndarray, orel: np.ndarray, origin: np.ndarray, pixel_angle: float,
+                        out: np.ndarray) -> None:
+    """``out[i] = (a, b, footprint, x, y, z)``: hit point in the polygon's texture axes (metres from its origin
+    along e1, e2), the pixel's footprint on it (metres; grows as the view becomes grazing) and the hit point in
+    the field frame (metres).
 
     Args:
         orel: (P, 3) float32 polygon origins minus the camera centre, metres.
+        origin: (3,) float64 camera centre, field frame.
         pixel_angle: angular pixel size, rad.
-        out: (N, 3) float32.
+        out: (N, 6) float32.
     """
-    for i in range(t.size):
+    for i in range(k.size):
         p = k[i]
-        ti = float(t[i])
-        rx = ti * d[i, 0] - orel[p, 0]
-        ry = ti * d[i, 1] - orel[p, 1]
-        rz = ti * d[i, 2] - orel[p, 2]
+        q = pix[i]
+        ti = float(t[q])
+        hx = ti * d[q, 0]
+        hy = ti * d[q, 1]
+        hz = ti * d[q, 2]
+        rx = hx - orel[p, 0]
+        ry = hy - orel[p, 1]
+        rz = hz - orel[p, 2]
         out[i, 0] = rx * tab[p, 0] + ry * tab[p, 1] + rz * tab[p, 2]
         out[i, 1] = rx * tab[p, 3] + ry * tab[p, 4] + rz * tab[p, 5]
-        ndv = (tab[p, 6] * d[i, 0] + tab[p, 7] * d[i, 1] + tab[p, 8] * d[i, 2]) / norm_d[i]
-        out[i, 2] = ti * norm_d[i] * pixel_angle / math.sqrt(max(abs(ndv), 0.05))
+        ndv = (tab[p, 6] * d[q, 0] + tab[p, 7] * d[q, 1] + tab[p, 8] * d[q, 2]) / norm_d[q]
+        out[i, 2] = ti * norm_d[q] * pixel_angle / math.sqrt(max(abs(ndv), 0.05))
+        out[i, 3] = origin[0] + hx
+        out[i, 4] = origin[1] + hy
+        out[i, 5] = origin[2] + hz
 
 
 @numba.njit(**NJIT)
-def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarray, tab: np.ndarray,
+def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, pix: np.ndarray, k: np.ndarray, tab: np.ndarray,
                   is_soy: np.ndarray, is_canopy: np.ndarray, coords: np.ndarray, tex: np.ndarray,
                   shadow: np.ndarray, origin_z: float, sun_dir: np.ndarray, sun_e: float, plant_height: float,
                   leaf_gloss: float, rad: np.ndarray, glare: np.ndarray) -> None:
-    """Linear radiance ``rad[i]`` (RGB) and glare radiance ``glare[i]`` (the specular part) of polygon pixels.
+    """Linear radiance ``rad[pix[i]]`` (RGB) of polygon pixels, and their glare radiance (the specular part) added to
+    ``glare[pix[i]]``.
 
     Args:
         is_soy, is_canopy: (P,) bool soybean leaflet (midrib and veins) / canopy prism, per polygon.
@@ -60,14 +72,15 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
         sun_dir: (3,) unit direction towards the sun; sun_e: direct sun irradiance.
         plant_height: canopy height for the height occlusion, metres.
         leaf_gloss: strength of the glossy highlight.
-        rad: (N, 3) float32 output; glare: (N,) float32 output.
+        rad: (H·W, 3) float32 output; glare: (H·W,) float32, added to.
     """
     sx, sy, sz = sun_dir[0], sun_dir[1], sun_dir[2]
-    for i in range(t.size):
+    for i in range(k.size):
         p = k[i]
-        ti = float(t[i])
-        nd = float(norm_d[i])
-        ux, uy, uz = d[i, 0] / nd, d[i, 1] / nd, d[i, 2] / nd
+        q = pix[i]
+        ti = float(t[q])
+        nd = float(norm_d[q])
+        ux, uy, uz = d[q, 0] / nd, d[q, 1] / nd, d[q, 2] / nd
         nx, ny, nz = float(tab[p, 6]), float(tab[p, 7]), float(tab[p, 8])
         ndv = nx * ux + ny * uy + nz * uz
         sgn = 1.0
@@ -80,8 +93,7 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
             ao = 1.0 - 0.35 * min(max(b / 0.35, 0.0), 1.0)
             irr = ao * 0.8 + sun_e * 0.85 * max(nx * sx + ny * sy + nz * sz, 0.0)
             for c in range(3):
-                rad[i, c] = tex[i, c] * irr
-            glare[i] = 0.0
+                rad[q, c] = tex[i, c] * irr
             continue
         size = float(tab[p, 12])
         ex = float(tab[p, 13])
@@ -102,7 +114,7 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
         ln = math.sqrt(lx * lx + ly * ly + lz * lz)
         lx, ly, lz = lx / ln, ly / ln, lz / ln
         ndl = lx * sx + ly * sy + lz * sz
-        hz = origin_z + ti * d[i, 2] - tab[p, 14]
+        hz = origin_z + ti * d[q, 2] - tab[p, 14]
         ao = 0.45 + 0.55 * min(max(hz / max(plant_height, 0.05), 0.0), 1.2)
         lit = sun_e * (1.0 - shadow[i])
         front = max(ndl, 0.0)
@@ -117,8 +129,8 @@ def poly_radiance(d: np.ndarray, t: np.ndarray, norm_d: np.ndarray, k: np.ndarra
         white = (1.0, 1.0, 0.95)
         for c in range(3):
             alb = float(tab[p, 9 + c]) * f
-            rad[i, c] = alb * base + alb * tint[c] * lit * trans + spec * white[c]
-        glare[i] = spec
+            rad[q, c] = alb * base + alb * tint[c] * lit * trans + spec * white[c]
+        glare[q] += spec
 
 
 @numba.njit(**NJIT)

@@ -142,7 +142,8 @@ def raster_polygons(uv: np.ndarray, order: np.ndarray, buf: np.ndarray) -> None:
 def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t: np.ndarray, label: np.ndarray,
                    canopy: np.ndarray, canopy_box: np.ndarray, tree_centre: np.ndarray, tree_radii: np.ndarray,
                    tree_profiles: np.ndarray, tree_top: np.ndarray, tree_k: np.ndarray, tree_arc: np.ndarray,
-                   tree_z: np.ndarray, pid: np.ndarray, poly_tab: np.ndarray, poly_orel: np.ndarray,
+                   tree_z: np.ndarray, ids: np.ndarray, raster_x: np.ndarray, raster_y: np.ndarray,
+                   poly_tab: np.ndarray, poly_orel: np.ndarray,
                    poly_is_canopy: np.ndarray, pixel_angle: float, near_m: float, poly_k: np.ndarray) -> None:
     """Nearest non-terrain surface of every ray, in place.
 
@@ -159,7 +160,8 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
         tree_profiles: (K, M) float32 tree-top height along each circle (M samples over 2π), metres.
         tree_top: (K,) float64 highest value of each profile, metres.
         tree_k, tree_arc, tree_z: (N,) outputs: tree line hit (-1: none), arc length (m) and height (m) of the hit.
-        pid: (N,) int32 polygon named by the raster for each ray (-1: none).
+        ids: (H_r, W_r) int32 polygon raster (-1: none); raster_x, raster_y: (N,) int32 the raster pixel of each
+            ray (nearest).
         poly_tab: (P, 16) float32 polygon table (``render.poly_table``: normal in columns 6-8, radius 15).
         poly_orel: (P, 3) float32 polygon origin minus the camera centre, metres.
         poly_is_canopy: (P,) bool canopy-prism material (labelled canopy, not leaf).
@@ -221,7 +223,7 @@ def trace_surfaces(dirs: np.ndarray, ray_norm: np.ndarray, origin: np.ndarray, t
         tree_k[r] = tk
         # the polygon the raster names: exact ray/plane hit, within its radius plus two pixels
         pk = -1
-        p = pid[r]
+        p = ids[raster_y[r], raster_x[r]]
         if p >= 0:
             nx, ny, nz = float(poly_tab[p, 6]), float(poly_tab[p, 7]), float(poly_tab[p, 8])
             rx, ry, rz = float(poly_orel[p, 0]), float(poly_orel[p, 1]), float(poly_orel[p, 2])
