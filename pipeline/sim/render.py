@@ -17,8 +17,8 @@ Per camera and frame:
    undistortion of every pixel, computed once), so no resampling blurs it.
 
 The per-ray and per-pixel loops (terrain intersection, surface tracing, polygon projection and raster, texture
-sampling, polygon shading, sensor) are numba kernels in ``pipeline/sim/*_kernels.py``; numpy and OpenCV do the
-rest.
+sampling, polygon and soil shading, leaf shadows, glare and haze, sensor) are numba kernels in
+``pipeline/sim/*_kernels.py``; numpy and OpenCV do the rest.
 
 Depth comes from the same z-buffer: ``Z`` in the rectified camera frame, metres (``inf`` for the sky). A 3-D
 point, its pixel and its depth therefore agree exactly.
