@@ -76,29 +76,6 @@ def smooth_noise_1d(rng: np.random.Generator, n: int, sigma: float, periodic: bo
     return (x - x.mean()) / (x.std() + 1e-12)
 
 
-def remap_points(img: np.ndarray, u: np.ndarray, v: np.ndarray, wrap: bool = True,
-                 interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
-    """Bilinear lookup of ``img`` at arbitrary texel coordinates.
-
-    Args:
-        img: (H, W) or (H, W, C) float32 image.
-        u, v: (N,) column and row coordinates in texels (texel centres at integers).
-        wrap: wrap around the borders (tiling); otherwise clamp to the border.
-    Returns:
-        (N,) or (N, C) float32 samples.
-    """
-    n = u.size
-    if n == 0:
-        return np.zeros((0,) + img.shape[2:], np.float32)
-    width = 1024
-    rows = -(-n // width)
-    pad = rows * width - n
-    U = np.pad(u.astype(np.float32, copy=False).ravel(), (0, pad)).reshape(rows, width)
-    V = np.pad(v.astype(np.float32, copy=False).ravel(), (0, pad)).reshape(rows, width)
-    out = cv2.remap(img, U, V, interpolation, borderMode=cv2.BORDER_WRAP if wrap else cv2.BORDER_REPLICATE)
-    return out.reshape((rows * width,) + img.shape[2:])[:n]
-
-
 def periodic_pyramid(img: np.ndarray, min_size: int = 4) -> list[np.ndarray]:
     """Mip pyramid of a tileable texture (each level halves both sides; the image sides must be powers of two)."""
     levels = [img.astype(np.float32)]
