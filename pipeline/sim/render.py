@@ -259,6 +259,12 @@ class FieldRenderer:
         self.tree_top = self.tree_profiles.max(axis=1).astype(np.float64)  # (2,) highest tree of each line, m
         self.centre = np.array(centre)
         self.tree_radii = (render.treeline_radius_m, render.treeline_radius_m * 3.2)
+        hc = self.field.canopy_height()
+        #: far canopy plane ``(height, x0, x1, y0, y1, min_range)`` (trace_kernels.trace_surfaces)
+        self._canopy_box = np.array([hc, *self.field.row_extent, PRISM1_RANGE_M], np.float64)
+        #: rows for the soil's row shadow ``(spacing, canopy height, half width, x0, x1, y0, y1)`` (ground_kernels)
+        self._row_params = np.array([field_cfg.row_spacing_m, hc, float(self.field.canopy_half_width(np.array(hc))),
+                                     *self.field.row_extent], np.float64)
         self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(1) if threads > 1 else None
 
     # ---- per-frame helpers -----------------------------------------------------------------------------------------
@@ -370,7 +376,6 @@ class FieldRenderer:
         dirs = cv2.transform(bundle.rays, R.astype(np.float32))  # (H, W, 3), rectified z = 1
         H, W = dirs.shape[:2]
         t, _, hgx, hgy = self.terrain.intersect_image(o, dirs, T_MAX_M, ref_xy=ref_xy)
-        x0, x1, y0, y1 = self.field.row_extent
         n = H * W
         label = np.empty((H, W), np.uint8)
         canopy = np.empty((H, W), bool)
@@ -381,7 +386,7 @@ class FieldRenderer:
         tab = polys.table if polys.table is not None else poly_table(polys)
         trace_surfaces(dirs.reshape(-1, 3), bundle.ray_norm.reshape(-1), o, t.reshape(-1), label.reshape(-1),
                        canopy.reshape(-1),
-                       np.array([self.field.canopy_height(), x0, x1, y0, y1, PRISM1_RANGE_M], np.float64),
+                       self._canopy_box,
                        self.centre, np.asarray(self.tree_radii, np.float64), self.tree_profiles,
                        self.tree_top, tree_k, tree_arc,
                        tree_z, ids, bundle.raster_x.reshape(-1), bundle.raster_y.reshape(-1), tab,
@@ -513,12 +518,9 @@ class FieldRenderer:
         grain = st.grain.sample_lod(px, py, lod_m - _F32(np.log2(st.grain.texel_m)), max_level=4)
         large = st.large.sample_lod(px, py, 1.0)  # one mip level (bilinear)
         amap, corner = atlas if atlas is not None else (_NO_ATLAS, np.zeros(2))
-        hc = self.field.canopy_height()
-        rows = np.array([self.cfg_field.row_spacing_m, hc, float(self.field.canopy_half_width(np.array(hc))),
-                         *self.field.row_extent], np.float64)
         soil_radiance(idx, px, py, dist, tr.hgx.reshape(-1)[idx], tr.hgy.reshape(-1)[idx], surf, grain, large, amap,
-                      np.asarray(corner, np.float64), SHADOW_TEXEL_M, float(self.cfg_render.shadow_range_m), rows,
-                      np.asarray(self.sky.sun_dir, np.float64), float(sun_e), out.reshape(-1, 3))
+                      np.asarray(corner, np.float64), SHADOW_TEXEL_M, float(self.cfg_render.shadow_range_m),
+                      self._row_params, np.asarray(self.sky.sun_dir, np.float64), float(sun_e), out.reshape(-1, 3))
 
     def _shade_polys(self, bundle: RayBundle, o: np.ndarray, tr: Trace, polys: PolySet, sun_e: float, atlas,
                      rad: np.ndarray, glare_rad: np.ndarray) -> None:
