@@ -75,12 +75,24 @@ class MsckfConfig:
 
     Depth (variants ``depth-*``; msckf.md §5):
         depth_seed: seed the triangulation with the measured depth when the anchor observation has one.
-        depth_row: [ablation] add an inverse-depth residual row per observation that has a depth reading
-            (with ``DEPTH_MAP`` observations the cam1 coordinate is then *not* used, so the depth is not
-            counted twice: rows are (u0, v0, 1/d)).
+        depth_row: [port, default True] a depth-map observation enters as an inverse-depth residual row with its
+            own σ (rows u0, v0, 1/d) instead of a virtual cam1 pixel derived from the cam0 pixel and the depth
+            (that pixel's error is fully correlated with cam0's and was treated as independent, σ = 1 px, with no
+            knowledge of the depth's own σ). Measured (benchmarks/bench_depth_oracle.py, 10 s presets 02/03,
+            3 seeds): depth-raw 0.0180 / 0.0463 m → 0.0189 / 0.0321 m, Telea-inpainted 0.0361 / 0.0359 m →
+            0.0194 / 0.0331 m, exact tracked-point depth 0.0121 / 0.0144 m → 0.0099 / 0.0122 m (stereo front end
+            0.0106 / 0.0229 m); NEES of depth runs 3.6 → 2.7 (bench_msckf.py --quick). False restores the
+            virtual-stereo model.
         depth_inv_sigma: 1/m, σ of the inverse depth from disparity noise (σ_disp_px / (fx · baseline)).
         depth_rel_sigma: relative depth error σ_z / z (e.g. inpainting error); the row's σ is
-            ``sqrt(depth_inv_sigma² + (depth_rel_sigma / z)²)`` in 1/m — depth dependent.
+            ``sqrt(depth_inv_sigma² + (depth_rel_sigma / z)²)`` in 1/m — depth dependent. An observation that
+            states its own σ_Z (``FeatureObservations.depth_sigma_m``: the pipeline's per-pixel depth σ) uses
+            ``σ_Z / Z²`` instead.
+        depth_gate_sigma: a depth row whose residual at the triangulated feature exceeds this many σ is dropped
+            (that observation counts as monocular); the χ² gate of the whole feature still follows. 0 disables.
+        depth_motion_rel_sigma: with ``depth_row``, a depth-map observation exempts its track from the monocular
+            motion check (``mono_translation_threshold``) only if its σ_Z / Z is at most this; with ``depth_row``
+            the triangulation also weights each depth by its σ instead of using the virtual cam1 pixel.
 
     Triangulation (S-MSCKF hard-coded values):
         huber_epsilon (normalised units), estimation_precision, initial_damping, outer_loop_max_iteration,
@@ -129,9 +141,11 @@ class MsckfConfig:
     propagate_to_image_time: bool = True
 
     depth_seed: bool = True
-    depth_row: bool = False
+    depth_row: bool = True
     depth_inv_sigma: float = 0.01
     depth_rel_sigma: float = 0.05
+    depth_gate_sigma: float = 0.0
+    depth_motion_rel_sigma: float = 0.05
 
     huber_epsilon: float = 0.01
     estimation_precision: float = 5e-7
@@ -186,7 +200,8 @@ class MsckfConfig:
             if getattr(self, name) <= 0:
                 raise bad(name, "must be > 0")
         for name in ("velocity_cov", "gyro_bias_cov", "acc_bias_cov", "extrinsic_rotation_cov",
-                     "extrinsic_translation_cov", "depth_rel_sigma", "rotation_threshold",
+                     "extrinsic_translation_cov", "depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma",
+                     "rotation_threshold",
                      "translation_threshold", "tracking_rate_threshold", "max_update_rows"):
             if getattr(self, name) < 0:
                 raise bad(name, "must be >= 0")

@@ -27,8 +27,8 @@ from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_cov
 from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
-                          find_redundant_clones, gating_chi2, inject_correction, measurement_blocks,
-                          qr_reference_update, schur_information)
+                          find_redundant_clones, gating_chi2, inject_correction, inverse_depth_sigma,
+                          measurement_blocks, qr_reference_update, schur_information)
 
 __all__ = ["MsckfFilter", "FrameStats"]
 
@@ -38,7 +38,8 @@ class FrameStats:
     """What the filter did with one image (for logs, replay and benchmarks). Times in seconds.
 
     ``over_budget``: the back end took longer than one image period (1 / ``config.frame_rate``), as msckf_vio
-    warns.
+    warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature that was
+    gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
     """
 
     stamp_s: float = 0.0
@@ -55,6 +56,8 @@ class FrameStats:
     online_reset: bool = False
     over_budget: bool = False
     timings: dict[str, float] = field(default_factory=dict)
+    gate_gamma: list[np.ndarray] = field(default_factory=list)
+    gate_dof: list[np.ndarray] = field(default_factory=list)
 
 
 class MsckfFilter:
@@ -289,6 +292,11 @@ class MsckfFilter:
         fs.obs[rows, slot, 0:2] = obs.cam0_xy
         fs.obs[rows, slot, 2:4] = cam1
         fs.depth[rows, slot] = depth
+        if obs.depth_sigma_m is not None:
+            sig = np.asarray(obs.depth_sigma_m, dtype=np.float64)
+            fs.depth_sigma[rows, slot] = np.where(np.isfinite(depth) & np.isfinite(sig) & (sig > 0), sig, np.nan)
+        else:
+            fs.depth_sigma[rows, slot] = np.nan
         fs.src[rows, slot] = src
         fs.has[rows, slot] = True
         st.n_new = int(np.count_nonzero(new))
@@ -322,7 +330,17 @@ class MsckfFilter:
         tr = cl.p[last] - cl.p[first]
         orth = tr - np.sum(tr * d, axis=1, keepdims=True) * d
         slots = order[cols]
-        any_cam1 = np.any(np.isfinite(fs.obs[rows[:, None], slots, 2]) & valid, axis=1)
+        rr = rows[:, None]
+        has_cam1 = np.isfinite(fs.obs[rr, slots, 2]) & valid
+        if self.config.depth_row:
+            # With inverse-depth rows, a depth-map observation gives the track a usable depth only if its σ is
+            # small: a filled depth with a 15 % σ does not make a short, low-parallax track observable.
+            dm = fs.src[rr, slots] == DepthSource.DEPTH_MAP
+            depth = fs.depth[rr, slots]
+            rel = inverse_depth_sigma(depth, fs.depth_sigma[rr, slots], self.config.depth_inv_sigma,
+                                      self.config.depth_rel_sigma) * depth
+            has_cam1 = np.where(dm, valid & (rel <= self.config.depth_motion_rel_sigma), has_cam1)
+        any_cam1 = np.any(has_cam1, axis=1)
         thr = np.where(any_cam1, self.config.feature_translation_threshold, self.config.mono_translation_threshold)
         return np.linalg.norm(orth, axis=1) > thr
 
@@ -340,12 +358,28 @@ class MsckfFilter:
             r_i = rows[idx]
             slots = order[cols[idx]]
             v_i = valid[idx]
-            R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], fs.obs[r_i[:, None], slots],
-                                                    v_i, self.R_c1_c0, self.t_c1_c0)
+            obs = fs.obs[r_i[:, None], slots]
+            depth_inv = depth_w = None
+            if self.config.depth_row:
+                # Depth enters as a σ-weighted inverse-depth residual, not as a virtual right-camera pixel.
+                dm = (fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP) & v_i
+                obs = obs.copy()
+                obs[..., 2:4] = np.where(dm[..., None], np.nan, obs[..., 2:4])
+                depth = np.where(dm, fs.depth[r_i[:, None], slots], np.nan)
+                sig = inverse_depth_sigma(depth, fs.depth_sigma[r_i[:, None], slots], self.config.depth_inv_sigma,
+                                          self.config.depth_rel_sigma)
+                k_, n_ = depth.shape
+                depth_inv = np.full((k_, 2 * n_), np.nan)
+                depth_w = np.full((k_, 2 * n_), np.nan)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    depth_inv[:, 0::2] = 1.0 / depth
+                    depth_w[:, 0::2] = self.config.feature_noise / sig
+            R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], obs, v_i, self.R_c1_c0,
+                                                    self.t_c1_c0)
             a_slot = slots[np.arange(len(idx)), anchor]
             a_depth = fs.depth[r_i, a_slot] if self.config.depth_seed else None
             x0 = initial_guess(R, t, z, vv, 2 * anchor, a_depth, self.tri_params.fallback_inverse_depth)
-            p_a, good, _ = triangulate_batch(R, t, z, vv, x0, self.tri_params)
+            p_a, good, _ = triangulate_batch(R, t, z, vv, x0, self.tri_params, depth_inv, depth_w)
             p_w = np.einsum("kij,kj->ki", cl.R_w_c[a_slot], p_a) + cl.p[a_slot]
             gr = r_i[good]
             fs.pos[gr] = p_w[good]
@@ -357,7 +391,8 @@ class MsckfFilter:
     def _measurement_spec(self) -> MeasurementSpec:
         c = self.config
         return MeasurementSpec(self.R_c1_c0, self.t_c1_c0, self.g_w, c.feature_noise,
-                               c.observability_constrained, c.depth_row, c.depth_inv_sigma, c.depth_rel_sigma)
+                               c.observability_constrained, c.depth_row, c.depth_inv_sigma, c.depth_rel_sigma,
+                               c.depth_gate_sigma)
 
     def _batch(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec) -> FeatureBatch:
         """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order)."""
@@ -370,7 +405,7 @@ class MsckfFilter:
             else np.zeros(slots.shape, dtype=bool)
         return measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                   cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
-                                  cols, len(order))
+                                  cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""
@@ -388,6 +423,8 @@ class MsckfFilter:
             gamma = gating_chi2(self.P, b, sigma)
             dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[grp]
             ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
+            st.gate_gamma.append(gamma)
+            st.gate_dof.append(np.asarray(b.n_rows - 3))
             st.n_gated_out += int(np.count_nonzero(~ok))
             if np.any(ok):
                 accepted.append(b.subset(ok))
@@ -482,6 +519,7 @@ class MsckfFilter:
         fs.has[:, rm] = False
         fs.obs[:, rm] = np.nan
         fs.depth[:, rm] = np.nan
+        fs.depth_sigma[:, rm] = np.nan
         keep = np.ones(self.P.shape[0], dtype=bool)
         for p in rm_pos:
             keep[IMU_DIM + 6 * p: IMU_DIM + 6 * p + 6] = False

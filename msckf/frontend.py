@@ -458,7 +458,7 @@ class DepthFrontend(_TrackerBase):
         self._K_rect = rig.K_rect
 
     def process(self, stamp_s: float, left_grey: np.ndarray, depth_m: np.ndarray,
-                depth_valid: np.ndarray) -> FeatureObservations:
+                depth_valid: np.ndarray, depth_sigma: np.ndarray | None = None) -> FeatureObservations:
         """Track features into a new raw left image and attach depths read from the rectified depth map.
 
         Args:
@@ -466,6 +466,8 @@ class DepthFrontend(_TrackerBase):
             left_grey: (H, W) uint8 raw (distorted) left image.
             depth_m: (H, W) float depth Z in metres in the rectified left camera frame.
             depth_valid: (H, W) bool, True where ``depth_m`` holds a depth.
+            depth_sigma: optional (H, W) float σ of ``depth_m`` in metres (per pixel; read at the feature's nearest
+                rectified pixel and carried to cam0 Z as ``depth_sigma_m``); None: no stated σ.
         Returns:
             The frame's features: ``DEPTH_MAP`` (with ``cam1_xy`` and ``depth_m``) or ``MONO``.
         """
@@ -515,8 +517,17 @@ class DepthFrontend(_TrackerBase):
         # Depth observations are recomputed every frame; the tracks keep no cam1 state.
         self._finish(stamp_s, left_grey, tracks)
         source = np.where(has, DepthSource.DEPTH_MAP, DepthSource.MONO).astype(np.uint8)
+        sigma0 = None
+        if depth_sigma is not None:
+            if not isinstance(depth_sigma, np.ndarray) or depth_sigma.shape != shape:
+                raise MsckfInputError(f"depth σ map must be a float {shape[1]}x{shape[0]} array (metres)")
+            h, w = shape
+            cu = np.clip(np.rint(np.nan_to_num(rect[:, 0], nan=-1.0)).astype(np.int64), 0, w - 1)
+            cv = np.clip(np.rint(np.nan_to_num(rect[:, 1], nan=-1.0)).astype(np.int64), 0, h - 1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sigma0 = np.where(has, depth_sigma[cv, cu].astype(np.float64) * z0 / z_rect, np.nan)
         obs = FeatureObservations(float(stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
-                                  tracks.life.astype(np.int32))
+                                  tracks.life.astype(np.int32), sigma0)
         counts["published"] = len(tracks)
         counts["with_depth"] = int(has.sum())
         self.last_debug = FrontendDebug(float(stamp_s), obs.ids, tracks.px0.copy(), px1, obs.track_length, source,

@@ -12,6 +12,11 @@ for step acceptance; here the same Huber cost is used for the weights and for ac
 
 All features are solved at once: per-feature damping λ, per-feature step acceptance, padded views with
 a validity mask — no Python loop over features.
+
+Depth measurements (optional, ``depth_inv`` / ``depth_weight``): a view with a measured depth adds the 1-D
+residual ``w · (ρ / h3 − 1/d)`` — the predicted minus the measured inverse depth in that view, whitened to the
+normalised-pixel unit by ``w = σ_pixel / σ_ρ`` — with its own Huber term. So a depth enters the triangulation
+with the weight its σ gives it (instead of as a virtual right-camera pixel with a pixel's weight).
 """
 
 from __future__ import annotations
@@ -118,15 +123,41 @@ def _huber_cost(r: np.ndarray, valid: np.ndarray, eps: float) -> np.ndarray:
     return c.sum(axis=1)
 
 
+def _depth_residuals(x: np.ndarray, R: np.ndarray, t: np.ndarray, depth_inv: np.ndarray, weight: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened inverse-depth residuals (k, V, 1) and their Jacobians (k, V, 1, 3) w.r.t. (α, β, ρ)."""
+    h3 = R[..., 2, 0] * x[:, None, 0] + R[..., 2, 1] * x[:, None, 1] + R[..., 2, 2] + x[:, None, 2] * t[..., 2]
+    rho = x[:, None, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = weight * (rho / h3 - depth_inv)
+        inv_h3_2 = 1.0 / (h3 * h3)
+        J = np.stack([-rho * R[..., 2, 0] * inv_h3_2, -rho * R[..., 2, 1] * inv_h3_2,
+                      (h3 - rho * t[..., 2]) * inv_h3_2], axis=-1) * weight[..., None]
+    return r[..., None], J[..., None, :]
+
+
+def _total_cost(x: np.ndarray, R: np.ndarray, t: np.ndarray, z: np.ndarray, valid: np.ndarray, eps: float,
+                depth_inv: np.ndarray | None, depth_weight: np.ndarray | None, dvalid: np.ndarray | None
+                ) -> np.ndarray:
+    _, r, _ = _residuals(x, R, t, z)
+    cost = _huber_cost(r, valid, eps)
+    if depth_inv is not None:
+        rd, _ = _depth_residuals(x, R, t, depth_inv, depth_weight)
+        cost = cost + _huber_cost(rd, dvalid, eps)
+    return cost
+
+
 def triangulate_batch(R: np.ndarray, t: np.ndarray, z: np.ndarray, valid: np.ndarray, x0: np.ndarray,
-                      params: TriangulationParams = TriangulationParams()
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      params: TriangulationParams = TriangulationParams(), depth_inv: np.ndarray | None = None,
+                      depth_weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve all features' inverse-depth LM problems together.
 
     Args:
         R, t: (k, V, 3, 3), (k, V, 3) anchor-cam0 → view transforms. z: (k, V, 2) normalised observations.
         valid: (k, V) bool. x0: (k, 3) initial (α, β, ρ).
         params: LM settings.
+        depth_inv: optional (k, V) measured inverse depth (1/m) of the point in each view's frame (NaN: none).
+        depth_weight: (k, V) whitening ``σ_pixel / σ_ρ`` of each depth residual (see the module doc).
     Returns:
         p_anchor (k, 3): point in the anchor cam0 frame (m); ok (k,): finite, ρ > 0 and in front of every
         valid view (S-MSCKF's validity test); cost (k,): final Huber cost (normalised units²).
@@ -134,8 +165,15 @@ def triangulate_batch(R: np.ndarray, t: np.ndarray, z: np.ndarray, valid: np.nda
     k = len(x0)
     eps = params.huber_epsilon
     x = np.array(x0, dtype=np.float64)
-    _, r, _ = _residuals(x, R, t, z)
-    cost = _huber_cost(r, valid, eps)
+    dvalid = None
+    if depth_inv is not None:
+        depth_inv = np.asarray(depth_inv, dtype=np.float64)
+        dvalid = np.isfinite(depth_inv) & np.isfinite(depth_weight) & (depth_weight > 0)
+        depth_weight = np.where(dvalid, depth_weight, 0.0)
+        depth_inv = np.where(dvalid, depth_inv, 0.0)
+        if not dvalid.any():
+            depth_inv = depth_weight = dvalid = None
+    cost = _total_cost(x, R, t, z, valid, eps, depth_inv, depth_weight, dvalid)
     lam = np.full(k, params.initial_damping)
     active = np.isfinite(cost)
     outer = np.zeros(k, dtype=np.int64)
@@ -164,6 +202,16 @@ def triangulate_batch(R: np.ndarray, t: np.ndarray, z: np.ndarray, valid: np.nda
             JwT = np.swapaxes(Jw, 1, 2)
             A[upd] = JwT @ J.reshape(len(upd), -1, 3)
             b[upd] = (JwT @ rr.reshape(len(upd), -1, 1))[..., 0]
+            if depth_inv is not None:
+                rd, Jd = _depth_residuals(x[upd], R[upd], t[upd], depth_inv[upd], depth_weight[upd])
+                ed = np.abs(rd[..., 0])
+                wd = np.where(ed <= eps, 1.0, eps / np.maximum(ed, 1e-300))
+                wd = np.where(dvalid[upd] & np.isfinite(ed), wd, 0.0)
+                rd = np.where(np.isfinite(rd), rd, 0.0)
+                Jd = np.where(np.isfinite(Jd), Jd, 0.0).reshape(len(upd), -1, 3)
+                JdwT = np.swapaxes(Jd * wd.reshape(len(upd), -1, 1), 1, 2)
+                A[upd] += JdwT @ Jd
+                b[upd] += (JdwT @ rd.reshape(len(upd), -1, 1))[..., 0]
             need[upd] = False
         Ad = A[idx] + lam[idx, None, None] * eye
         try:
@@ -171,8 +219,11 @@ def triangulate_batch(R: np.ndarray, t: np.ndarray, z: np.ndarray, valid: np.nda
         except np.linalg.LinAlgError:
             delta = np.stack([np.linalg.lstsq(a, bb, rcond=None)[0] for a, bb in zip(Ad, b[idx])])
         x_new = x[idx] - delta
-        _, r_new, _ = _residuals(x_new, R[idx], t[idx], z[idx])
-        new_cost = _huber_cost(r_new, valid[idx], eps)
+        if depth_inv is None:
+            new_cost = _total_cost(x_new, R[idx], t[idx], z[idx], valid[idx], eps, None, None, None)
+        else:
+            new_cost = _total_cost(x_new, R[idx], t[idx], z[idx], valid[idx], eps, depth_inv[idx],
+                                   depth_weight[idx], dvalid[idx])
         better = new_cost < cost[idx]
         acc = idx[better]
         rej = idx[~better]

@@ -32,6 +32,8 @@ class FeatureObservations:
         depth_m: (N,) depth Z in the cam0 frame in metres from a depth map; NaN where not available.
         source: (N,) uint8 ``DepthSource`` per feature.
         track_length: (N,) int32 number of frames the track has been observed, this one included.
+        depth_sigma_m: (N,) σ of ``depth_m`` in metres (cam0 Z), or None. NaN entries (or None) mean "no stated
+            σ": the filter then uses its configured depth noise model (``MsckfConfig.depth_*``).
     """
 
     stamp_s: float
@@ -41,11 +43,15 @@ class FeatureObservations:
     depth_m: np.ndarray
     source: np.ndarray
     track_length: np.ndarray
+    depth_sigma_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.ids)
-        for name, shape in (("cam0_xy", (n, 2)), ("cam1_xy", (n, 2)), ("depth_m", (n,)), ("source", (n,)),
-                            ("track_length", (n,))):
+        checks = [("cam0_xy", (n, 2)), ("cam1_xy", (n, 2)), ("depth_m", (n,)), ("source", (n,)),
+                  ("track_length", (n,))]
+        if self.depth_sigma_m is not None:
+            checks.append(("depth_sigma_m", (n,)))
+        for name, shape in checks:
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"FeatureObservations.{name} must have shape {shape}, "
                                  f"got {np.shape(getattr(self, name))}")

@@ -39,7 +39,7 @@ from scipy.stats import chi2
 from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
-__all__ = ["MeasurementSpec", "FeatureBatch", "measurement_blocks", "gating_chi2", "chi2_threshold",
+__all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
            "schur_information", "ekf_update_information", "qr_reference_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
@@ -52,7 +52,10 @@ class MeasurementSpec:
         R_c1_c0: (3, 3) cam0 → cam1 rotation; t_c1_c0: (3,) m.
         g_w: (3,) world gravity, m/s². feature_noise: σ in normalised units.
         oc: OC-EKF projection of H. depth_row: use inverse-depth rows for depth-implied observations.
-        depth_inv_sigma (1/m), depth_rel_sigma (fraction): σ_ρ = sqrt(depth_inv_sigma² + (depth_rel_sigma/z)²).
+        depth_inv_sigma (1/m), depth_rel_sigma (fraction): σ_ρ = sqrt(depth_inv_sigma² + (depth_rel_sigma/z)²)
+            where an observation states no σ of its own.
+        depth_gate_sigma: drop a depth row whose residual at the triangulated point exceeds this many of its σ
+            (the observation then counts as monocular: its u0, v0 rows stay); 0 disables.
     """
 
     R_c1_c0: np.ndarray
@@ -63,6 +66,19 @@ class MeasurementSpec:
     depth_row: bool = False
     depth_inv_sigma: float = 0.01
     depth_rel_sigma: float = 0.05
+    depth_gate_sigma: float = 0.0
+
+
+def inverse_depth_sigma(depth: np.ndarray, depth_sigma: np.ndarray | None, inv_sigma: float, rel_sigma: float
+                        ) -> np.ndarray:
+    """σ_ρ (1/m) of measured inverse depths: ``σ_Z / Z²`` where an observation states σ_Z (m), else the configured
+    model ``sqrt(inv_sigma² + (rel_sigma / Z)²)``. Shapes follow ``depth``; NaN where there is no depth."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sig = np.sqrt(inv_sigma ** 2 + (rel_sigma / depth) ** 2)
+        if depth_sigma is not None:
+            stated = np.isfinite(depth_sigma) & (depth_sigma > 0)
+            sig = np.where(stated, depth_sigma / (depth * depth), sig)
+    return np.where(np.isfinite(depth) & (depth > 0), sig, np.nan)
 
 
 @dataclass
@@ -105,8 +121,8 @@ def bucket_by_length(n_obs: np.ndarray, edges: tuple[int, ...] = (8,)) -> list[n
 
 def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray, p_c: np.ndarray,
                        R_c_w_null: np.ndarray, p_c_null: np.ndarray, obs: np.ndarray, depth: np.ndarray,
-                       use_depth_row: np.ndarray, has: np.ndarray, pos: np.ndarray, dummy_pos: int
-                       ) -> FeatureBatch:
+                       use_depth_row: np.ndarray, has: np.ndarray, pos: np.ndarray, dummy_pos: int,
+                       depth_sigma: np.ndarray | None = None) -> FeatureBatch:
     """Residuals and Jacobians of k features over their (padded) n clones.
 
     Args:
@@ -115,6 +131,8 @@ def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray
         obs: (k, n, 4) normalised (u0, v0, u1, v1), NaN cam1 where monocular. depth: (k, n) measured Z (m) or NaN.
         use_depth_row: (k, n) bool, observations whose depth enters as an inverse-depth row (cam1 rows dropped).
         has: (k, n) bool valid pairs. pos: (k, n) clone order positions. dummy_pos: position for padding.
+        depth_sigma: (k, n) σ of the measured Z in metres, or None; where finite, the inverse-depth row's σ is
+            ``σ_Z / Z²`` (first order), elsewhere the configured model of ``spec``.
     Returns:
         The :class:`FeatureBatch`.
     """
@@ -144,9 +162,9 @@ def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray
 
     # whitening of the depth row to the feature σ
     sig_f = spec.feature_noise
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sig_rho = np.sqrt(spec.depth_inv_sigma ** 2 + (spec.depth_rel_sigma / depth) ** 2)
-    depth_ok = use_depth_row & np.isfinite(depth) & (depth > 0) & has
+    sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
+    depth_used = use_depth_row & np.isfinite(depth) & (depth > 0) & has
+    depth_ok = depth_used.copy()
     scale = np.where(depth_ok, sig_f / np.where(depth_ok, sig_rho, 1.0), 0.0)
     Jall[..., 4, :] *= scale[..., None]
 
@@ -178,7 +196,11 @@ def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray
         zmeas = np.concatenate([obs, (1.0 / depth)[..., None]], axis=-1)
     r = zmeas - h
     r[..., 4] *= scale
-    cam1_ok = has & np.isfinite(obs[..., 2]) & np.isfinite(obs[..., 3]) & ~depth_ok
+    if spec.depth_gate_sigma > 0:
+        # r[..., 4] is whitened to σ_f: |r| / σ_f is the depth residual in units of its own σ
+        with np.errstate(invalid="ignore"):
+            depth_ok &= np.abs(r[..., 4]) <= spec.depth_gate_sigma * sig_f
+    cam1_ok = has & np.isfinite(obs[..., 2]) & np.isfinite(obs[..., 3]) & ~depth_used
     rows = np.stack([has, has, cam1_ok, cam1_ok, depth_ok], axis=-1)[..., :n_rows]
     r = r[..., :n_rows]
     rows &= np.isfinite(r)

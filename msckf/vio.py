@@ -78,7 +78,8 @@ class Msckf:
         self.filter.feed_imu(t_s, gyro, accel)
 
     def add_frame(self, stamp_s: float, left_grey: np.ndarray, right_grey: np.ndarray | None = None,
-                  depth: np.ndarray | None = None, depth_valid: np.ndarray | None = None) -> PoseEstimate | None:
+                  depth: np.ndarray | None = None, depth_valid: np.ndarray | None = None,
+                  depth_sigma: np.ndarray | None = None) -> PoseEstimate | None:
         """Process one frame; returns the pose at ``stamp_s`` (None while initialising).
 
         Args:
@@ -87,6 +88,8 @@ class Msckf:
             right_grey: raw right image (variant ``stereo``).
             depth: float H×W depth in metres in the rectified left frame (variant ``depth``).
             depth_valid: bool H×W; default: finite and positive depth.
+            depth_sigma: float H×W σ of ``depth`` in metres (variant ``depth``), or None (the filter's configured
+                depth noise model applies).
         Raises:
             MsckfInputError: missing or malformed images for the variant.
             FilterDivergedError: the filter diverged (the run failed; the reason is in the exception).
@@ -101,7 +104,12 @@ class Msckf:
             d = np.asarray(depth, dtype=np.float32)
             if depth_valid is None:
                 depth_valid = np.isfinite(d) & (d > 0)
-            obs = self.frontend.process(float(stamp_s), left_grey, d, np.asarray(depth_valid, dtype=bool))
+            valid = np.asarray(depth_valid, dtype=bool)
+            if depth_sigma is None:
+                obs = self.frontend.process(float(stamp_s), left_grey, d, valid)
+            else:
+                obs = self.frontend.process(float(stamp_s), left_grey, d, valid,
+                                            np.asarray(depth_sigma, dtype=np.float32))
         return self.add_features(obs)
 
     def add_features(self, obs: FeatureObservations) -> PoseEstimate | None:

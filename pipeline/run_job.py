@@ -33,6 +33,7 @@ from pipeline.bag_reader import RosarioSequence
 from pipeline.batch import Job
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
+from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams
 from pipeline.odometry_ekf import run_odometry_ekf
@@ -150,6 +151,11 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     if depth_store is not None and depth_store.n_frames is None:
         raise AgrivioError(f"{seq.path}: the {job.variant} depth cache is missing or incomplete "
                            f"({depth_store.directory}); run the depth/inpainting stage first")
+    # Per-pixel depth σ (pipeline/depth_sigma.py): the raw validity mask travels with the inpainted map, so the
+    # filter can tell a filled depth from a measured one.
+    sigma_model = DepthSigmaModel.for_rig(rig)
+    raw_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams()) \
+        if job.variant == "depth-inpainted" else None
     non_static: str | None = None
     stamps: list[float] = []
     ps: list[np.ndarray] = []
@@ -172,7 +178,14 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                 d = depth_store.get(frame.index)
                 if d is None:
                     raise AgrivioError(f"{seq.path}: depth cache has no frame {frame.index}")
-                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid)
+                if raw_store is None:
+                    sigma = sigma_model.raw_sigma(d.depth_m, d.valid)
+                else:
+                    r = raw_store.get(frame.index)
+                    if r is None:
+                        raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index}")
+                    sigma = sigma_model.filled_sigma(d.depth_m, r.valid, inputs.inpaint_method)
+                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
             if pose is not None:
                 stamps.append(pose.stamp_s)

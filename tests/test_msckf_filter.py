@@ -175,7 +175,7 @@ def test_same_inputs_give_bit_identical_outputs():
     assert np.array_equal(outs[0], outs[1])
 
 
-@pytest.mark.parametrize("variant", ["mono", "depth", "depth_row"])
+@pytest.mark.parametrize("variant", ["mono", "depth", "depth_row"])  # "depth": the virtual-stereo model
 def test_monocular_and_depth_observations_track(variant):
     kw = dict(mono_fraction=1.0) if variant == "mono" else dict(depth_mode=True, depth_rel_sigma=0.01)
     w = make_world(seed=12, duration=6.0, max_features=150, **kw)

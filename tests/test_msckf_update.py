@@ -89,7 +89,7 @@ def running_filter(request):
     w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=request.param == "depth",
                    depth_rel_sigma=0.02)
     cfg = MsckfConfig(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                      feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4)
+                      feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_row=False)
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81,
                    covariance=np.diag(np.r_[[1e-4] * 3, [1e-6] * 3, [1e-2] * 3, [1e-4] * 3, [1e-4] * 3,

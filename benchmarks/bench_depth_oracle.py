@@ -1,0 +1,119 @@
+"""The depth oracle ladder: does the depth-aided VIO get more accurate when its depth gets more accurate?
+
+On simulated sequences (truth known), the depth front end's tracks are recorded once per seed; each rung then
+replaces only the depth values attached to those tracks and re-runs the back end (pipeline/depth_oracle.py):
+
+    depth-raw                 SGBM depth at every raw-valid feature (what the pipeline's depth-raw run gets)
+    depth-raw@tracked-point   the same, only at features whose track is a consistent 3-D point
+    exact@raw-valid           the tracked point's true depth at those same features
+    exact-everywhere          the tracked point's true depth at every feature that has one (holes included)
+    exact+1/3/10%             exact-everywhere × (1 + N(0, level)), σ stated to the filter
+    inpainted[METHOD]         the inpainted map (raw where measured), as the depth-inpainted run gets it
+    stereo                    the stereo front end (KLT left→right), for reference
+
+ATE RMSE against the simulator's true antenna positions (SE(3), 20 ms, estimate at the antenna). The verdict
+(``ladder monotone: yes|no``) checks every chain of rungs with paired per-seed differences
+(pipeline/depth_oracle_run.ladder_verdict). Prints tables, writes JSON (default
+<cache>/benchmarks/bench_depth_oracle.json). One core: BLAS threads pinned.
+
+    .venv/bin/python benchmarks/bench_depth_oracle.py [--presets 02 03] [--seeds 0 1 2] [--duration 10]
+        [--methods telea] [--config '{"depth_row": true}'] [--no-sigma] [--no-stereo]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from pipeline.atomic import write_json_atomic  # noqa: E402
+from pipeline.depth_oracle_run import (default_config, ladder_verdict, prepare_oracle, run_ladder,  # noqa: E402
+                                       stereo_reference)
+from pipeline.paths import cache_dir  # noqa: E402
+from pipeline.sim_source import simulate_cached  # noqa: E402
+
+
+def _fmt(res: dict, seeds: list[int]) -> list[str]:
+    lines = [f"| rung | ATE RMSE mean (m) | per seed | depth on features | gated out | failed |",
+             "|---|---|---|---|---|---|"]
+    for name, r in res.items():
+        a = [r["ate"].get(s, float("nan")) for s in seeds]
+        lines.append(f"| {name} | {np.nanmean(a):.4f} | {' '.join(f'{x:.4f}' for x in a)} | "
+                     f"{r.get('depth_fraction', float('nan')):.2f} | {r.get('gated_out', '')} | "
+                     f"{len(r['failed'])} |")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--presets", nargs="+", default=["02", "03"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--methods", nargs="*", default=["telea"])
+    ap.add_argument("--config", default=None, help="MSCKF overrides as a JSON mapping")
+    ap.add_argument("--no-sigma", action="store_true", help="do not pass per-pixel depth σ to the filter")
+    ap.add_argument("--no-stereo", action="store_true")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    cache = cache_dir()
+    overrides = json.loads(args.config) if args.config else {}
+    config = default_config(overrides)
+    results: dict[str, dict] = {}
+    extra: dict[str, dict] = {}
+    t0 = time.perf_counter()
+    for p in args.presets:
+        preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
+        src = simulate_cached(preset, duration_s=args.duration, progress=False)
+        prep = prepare_oracle(src.sim_dir, cache, args.methods, config, args.seeds, args.max_frames)
+        res = run_ladder(prep, config, methods=args.methods, use_sigma=not args.no_sigma)
+        if not args.no_stereo:
+            res["stereo"] = stereo_reference(src.sim_dir, config, args.seeds, prep, args.max_frames)
+        results[preset] = res
+        extra[preset] = {"truth": prep["truth_stats"], "depth_error_at_tracked_points": prep["depth_errors"]}
+        print(f"\n### {preset} ({len(args.seeds)} seeds, {args.duration:g} s; config {overrides or 'default'}; "
+              f"σ to the filter: {'no' if args.no_sigma else 'yes'})")
+        print("\n".join(_fmt(res, args.seeds)))
+        tri = np.mean([v["triangulated"] for v in prep["truth_stats"].values()])
+        print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "
+              f"3-D point against the true poses, or outside the depth range)")
+        for m, e in prep["depth_errors"].items():
+            print(f"depth at tracked points, {m}: median |rel. error| {e['median_abs_rel']:.2%}, "
+                  f"median rel. error {e['median_rel']:+.2%} (n = {e['n']})")
+    ok, bad = ladder_verdict(results)
+    for b in bad:
+        print("violation:", b)
+    checks = {}
+    for preset, res in results.items():
+        if "stereo" in res and "exact-everywhere" in res:
+            ex = np.mean(list(res["exact-everywhere"]["ate"].values()) or [np.nan])
+            raw = np.mean(list(res["depth-raw"]["ate"].values()) or [np.nan])
+            st = np.mean(list(res["stereo"]["ate"].values()) or [np.nan])
+            checks[preset] = {"exact_le_raw": bool(ex <= raw), "exact_within_10pct_of_stereo": bool(ex <= 1.1 * st),
+                              "exact": ex, "raw": raw, "stereo": st}
+            print(f"{preset}: exact-everywhere {ex:.4f} m vs depth-raw {raw:.4f} m vs stereo {st:.4f} m "
+                  f"(exact ≤ raw: {'yes' if ex <= raw else 'no'}; within 10 % of stereo: "
+                  f"{'yes' if ex <= 1.1 * st else 'no'})")
+    print(f"ladder monotone: {'yes' if ok else 'no'}")
+    out = args.json or cache / "benchmarks" / "bench_depth_oracle.json"
+    write_json_atomic(out, {"args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+                            "config_overrides": overrides, "results": results, "extra": extra,
+                            "monotone": ok, "violations": bad, "checks": checks,
+                            "wall_s": time.perf_counter() - t0})
+    print(f"JSON: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

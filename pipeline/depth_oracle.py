@@ -1,0 +1,403 @@
+"""The depth oracle ladder: the same feature tracks, depths of known quality, the VIO's accuracy on each rung.
+
+Why: a depth-aided VIO can only judge inpainting if it becomes *more* accurate when its depth becomes more
+accurate. This module measures that on a simulated sequence, where the truth is known:
+
+1. **Record the tracks once per seed.** The depth front end's tracking never looks at the depth map, so every
+   depth variant with the same seed sees the same tracks. One pass of :class:`msckf.frontend.DepthFrontend`
+   (driven with the raw SGBM map, i.e. exactly the ``depth-raw`` run) records, per frame, each feature's id,
+   cam0 coordinate, track length and rectified pixel, and what every depth map of interest gives at that
+   pixel (``sample_depth`` with the front end's own rejection rules: raw SGBM, each inpainted map).
+2. **The truth of a tracked point.** The exact depth *map* is not the truth at a tracked corner (corners sit on
+   depth edges: the map's value there is a foreground/background blend, measured +4.8–5.7 % too far). The
+   truth is the depth of the tracked 3-D point: each track is triangulated from its cam0 observations with the
+   simulator's *true* camera poses (``truth.npz: T_E_rectleft``), and its Z in each frame is that point's
+   depth. Tracks whose true-pose triangulation is inconsistent (RMS reprojection > ``max_rms_px``: phantom
+   corners at occlusion T-junctions have no 3-D point) or ill-conditioned (σ_Z/Z > ``max_rel_sigma``) fall back
+   to the exact map's value at the nearest pixel; the fraction is reported.
+3. **Rungs.** Each rung replaces only the depth values (and which features have one) and re-runs the back end
+   (:class:`msckf.filter.MsckfFilter`) on identical tracks and IMU; ATE as the pipeline computes it.
+
+Depths are handled as rectified-frame Z (what a depth map holds) and converted to cam0 Z and the cam1
+coordinate with :func:`msckf.frontend_depth.depth_to_stereo`, as the front end does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from eval.evaluate import EvalOptions, evaluate
+from eval.trajectory import Trajectory, read_tum
+from msckf.config import MsckfConfig
+from msckf.errors import FilterDivergedError
+from msckf.filter import MsckfFilter
+from msckf.frontend import DepthFrontend
+from msckf.frontend_depth import depth_to_stereo, rectified_pixels_from_normalised, sample_depth
+from msckf.init import NonStaticStartError
+from msckf.types import DepthSource, FeatureObservations
+
+__all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "Rung", "standard_rungs",
+           "run_backend", "evaluate_rung"]
+
+
+@dataclass
+class TrackedFrame:
+    """One frame of recorded tracks.
+
+    Attributes:
+        stamp_s: image time, s. index: stereo frame index.
+        ids: (N,) int64 track ids. xy0: (N, 2) cam0 normalised coordinates. track_length: (N,) int32.
+        rect_px: (N, 2) rectified left pixels of the features.
+        z_rect: map name → (N,) rectified-frame Z in metres that the front end reads from that map (NaN where
+            the read is rejected: hole, depth edge, out of range).
+        sigma_rect: map name → (N,) σ of that Z in metres, where the map provides one (else absent).
+    """
+
+    stamp_s: float
+    index: int
+    ids: np.ndarray
+    xy0: np.ndarray
+    track_length: np.ndarray
+    rect_px: np.ndarray
+    z_rect: dict[str, np.ndarray] = field(default_factory=dict)
+    sigma_rect: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class TrackLog:
+    """The recorded tracks of one seed plus the IMU they were recorded with.
+
+    Attributes:
+        frames: the :class:`TrackedFrame` of every frame, in time order.
+        imu: (M, 7) ``[t_s, gyro (rad/s), accel (m/s²)]`` IMU samples, IMU frame.
+        seed: the front end's seed the tracks were recorded with.
+        truth: filled by :func:`true_track_depths`: per frame (N,) true rectified Z, m (NaN outside range).
+        truth_source: per frame (N,) uint8: 1 = true-pose triangulation, 2 = exact-map fallback, 0 = none.
+    """
+
+    frames: list[TrackedFrame]
+    imu: np.ndarray
+    seed: int = 0
+    truth: list[np.ndarray] = field(default_factory=list)
+    truth_source: list[np.ndarray] = field(default_factory=list)
+
+
+DepthProvider = Callable[[int], "tuple[np.ndarray, np.ndarray, np.ndarray | None]"]
+
+
+def record_tracks(rig: Any, config: MsckfConfig, seed: int, imu: np.ndarray,
+                  frames: Iterable[tuple[int, float, np.ndarray]], raw_depth: DepthProvider,
+                  other_maps: Mapping[str, DepthProvider] | None = None) -> TrackLog:
+    """Run the depth front end over a sequence and record its tracks and the depth every map gives them.
+
+    Args:
+        rig: the :class:`msckf.camera.StereoRig`.
+        config: the VIO configuration (its front-end part drives tracking and depth reading).
+        seed: the front end's seed (RANSAC), as the run's seed.
+        imu: (M, 7) IMU samples (fed to the front end for its rotation prediction, as in a run).
+        frames: ``(index, stamp_s, left_grey)`` per stereo frame, in time order.
+        raw_depth: index → ``(depth_m, valid, sigma_m or None)`` of the raw SGBM map (drives the front end).
+        other_maps: name → provider of further maps read at the same pixels (e.g. inpainted, exact).
+    Returns:
+        The :class:`TrackLog`; ``z_rect["raw"]`` is what the ``depth-raw`` run attaches.
+    """
+    fe = DepthFrontend(config.frontend, rig, rig.T_left_imu, seed)
+    c = config.frontend
+    other_maps = dict(other_maps or {})
+    out: list[TrackedFrame] = []
+    k = 0
+    for index, t_img, left in frames:
+        while k < len(imu) and imu[k, 0] <= t_img:
+            fe.add_imu(float(imu[k, 0]), imu[k, 1:4])
+            k += 1
+        d, v, s = raw_depth(index)
+        obs = fe.process(float(t_img), left, d, v)
+        rect = rectified_pixels_from_normalised(obs.cam0_xy, rig.R_left, rig.K_rect)
+        tf = TrackedFrame(float(t_img), int(index), obs.ids.copy(), obs.cam0_xy.copy(),
+                          obs.track_length.copy(), rect)
+        for name, (dm, vm, sm) in [("raw", (d, v, s))] + [(n, p(index)) for n, p in other_maps.items()]:
+            z, _ = sample_depth(dm, vm, rect, c.depth_sampling, c.depth_edge_window, c.depth_edge_threshold,
+                                c.min_depth_m, c.max_depth_m)
+            tf.z_rect[name] = z
+            if sm is not None:
+                tf.sigma_rect[name] = _nearest(sm, rect)
+        out.append(tf)
+    return TrackLog(out, imu, int(seed))
+
+
+def _nearest(img: np.ndarray, px: np.ndarray) -> np.ndarray:
+    h, w = img.shape
+    u = np.clip(np.rint(np.nan_to_num(px[:, 0], nan=-1)).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(np.nan_to_num(px[:, 1], nan=-1)).astype(np.int64), 0, h - 1)
+    return img[v, u].astype(np.float64)
+
+
+def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[int, np.ndarray],
+                      exact_map: DepthProvider | None = None, min_depth_m: float = 0.3, max_depth_m: float = 20.0,
+                      max_rms_px: float = 1.0, max_rel_sigma: float = 0.02, pixel_sigma: float = 0.5
+                      ) -> dict[str, float]:
+    """Fill ``log.truth``: the true rectified Z of every tracked point in every frame (see the module doc).
+
+    Args:
+        K_rect: (3, 3) rectified left intrinsics.
+        T_world_rect: frame index → (4, 4) true pose mapping rectified-left points into the world.
+        exact_map: index → exact depth map (fallback for tracks that cannot be triangulated consistently).
+        max_rms_px: largest RMS reprojection error (px) of a true-pose triangulation to accept it.
+        max_rel_sigma: largest σ_Z/Z (at ``pixel_sigma`` px of tracking noise) to accept it.
+    Returns:
+        Statistics: fraction of observations with a triangulated truth, with a fallback, with none; median RMS.
+    """
+    obs_of: dict[int, list[tuple[int, int]]] = {}
+    for fi, fr in enumerate(log.frames):
+        for j, tid in enumerate(fr.ids):
+            obs_of.setdefault(int(tid), []).append((fi, j))
+    Kinv = np.linalg.inv(K_rect)
+    truth = [np.full(len(fr.ids), np.nan) for fr in log.frames]
+    source = [np.zeros(len(fr.ids), np.uint8) for fr in log.frames]
+    rms_all: list[float] = []
+    for tid, lst in obs_of.items():
+        if len(lst) < 2:
+            continue
+        fis = np.array([a for a, _ in lst])
+        js = np.array([b for _, b in lst])
+        px = np.stack([log.frames[a].rect_px[b] for a, b in lst])
+        Ts = np.stack([T_world_rect[log.frames[a].index] for a in fis])
+        p, rms, rel = _triangulate_true(px, Ts, Kinv, K_rect, pixel_sigma)
+        if p is None:
+            continue
+        rms_all.append(rms)
+        if rms > max_rms_px or rel > max_rel_sigma:
+            continue
+        R = Ts[:, :3, :3]
+        c = Ts[:, :3, 3]
+        z = np.einsum("kij,ki->kj", R, p[None] - c)[:, 2]
+        for a, b, zz in zip(fis, js, z):
+            truth[a][b] = zz
+            source[a][b] = 1
+    if exact_map is not None:
+        for fi, fr in enumerate(log.frames):
+            miss = source[fi] == 0
+            if np.any(miss):
+                dm, vm, _ = exact_map(fr.index)
+                val = _nearest(np.where(vm, dm, np.nan), fr.rect_px[miss])
+                truth[fi][miss] = val
+                source[fi][miss] = np.where(np.isfinite(val), 2, 0)
+    for fi in range(len(truth)):
+        out = ~((truth[fi] >= min_depth_m) & (truth[fi] <= max_depth_m))
+        truth[fi][out] = np.nan
+        source[fi][out] = 0
+    log.truth, log.truth_source = truth, source
+    src = np.concatenate(source) if source else np.zeros(0, np.uint8)
+    n = max(len(src), 1)
+    return {"triangulated": float(np.mean(src == 1)) if len(src) else 0.0,
+            "exact_map_fallback": float(np.count_nonzero(src == 2) / n),
+            "none": float(np.count_nonzero(src == 0) / n),
+            "median_rms_px": float(np.median(rms_all)) if rms_all else float("nan")}
+
+
+def _triangulate_true(px: np.ndarray, Ts: np.ndarray, Kinv: np.ndarray, K: np.ndarray, pixel_sigma: float
+                      ) -> tuple[np.ndarray | None, float, float]:
+    """Least-squares point of rays from known poses, refined by Gauss–Newton on the pixel error.
+
+    Returns (point (3,) world or None, RMS reprojection px, σ_Z/Z in the last view).
+    """
+    rays = np.concatenate([px, np.ones((len(px), 1))], axis=1) @ Kinv.T
+    R = Ts[:, :3, :3]
+    c = Ts[:, :3, 3]
+    d = np.einsum("kij,kj->ki", R, rays)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for di, ci in zip(d, c):
+        M = np.eye(3) - np.outer(di, di)
+        A += M
+        b += M @ ci
+    if np.linalg.cond(A) > 1e10:
+        return None, np.inf, np.inf
+    p = np.linalg.solve(A, b)
+    H = np.eye(3)
+    for _ in range(5):
+        pc = np.einsum("kji,kj->ki", R, p[None] - c)             # R^T (p - c)
+        if np.any(pc[:, 2] <= 0.05):
+            return None, np.inf, np.inf
+        proj = (pc @ K.T)
+        uv = proj[:, :2] / proj[:, 2:3]
+        r = (uv - px).reshape(-1)
+        fx, fy = K[0, 0], K[1, 1]
+        z = pc[:, 2]
+        J_pc = np.zeros((len(px), 2, 3))
+        J_pc[:, 0, 0] = fx / z
+        J_pc[:, 0, 2] = -fx * pc[:, 0] / z ** 2
+        J_pc[:, 1, 1] = fy / z
+        J_pc[:, 1, 2] = -fy * pc[:, 1] / z ** 2
+        J = (J_pc @ np.swapaxes(R, 1, 2)).reshape(-1, 3)
+        H = J.T @ J
+        try:
+            step = np.linalg.solve(H, J.T @ r)
+        except np.linalg.LinAlgError:
+            return None, np.inf, np.inf
+        p = p - step
+        if np.linalg.norm(step) < 1e-7:
+            break
+    pc = np.einsum("kji,kj->ki", R, p[None] - c)
+    if np.any(pc[:, 2] <= 0.05):
+        return None, np.inf, np.inf
+    proj = pc @ K.T
+    uv = proj[:, :2] / proj[:, 2:3]
+    rms = float(np.sqrt(np.mean(np.sum((uv - px) ** 2, axis=1))))
+    try:
+        cov = pixel_sigma ** 2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None, np.inf, np.inf
+    ez = R[-1][:, 2]
+    rel = float(np.sqrt(max(ez @ cov @ ez, 0.0)) / pc[-1, 2])
+    return p, rms, rel
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One rung of the ladder: how each frame's rectified Z (and σ) is chosen.
+
+    ``depth(log, frame_index) -> (z_rect (N,), sigma_rect (N,) or None)``; NaN z = the feature has no depth.
+    ``order``: the rung's depth-error rank within its chain (lower = more accurate), for the monotonicity check.
+    """
+
+    name: str
+    depth: Callable[[TrackLog, int], "tuple[np.ndarray, np.ndarray | None]"]
+    chain: str = ""
+    order: int = 0
+
+
+def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
+                   noise_seed: int = 0, exact_sigma_rel: float = 0.002) -> list[Rung]:
+    """The ladder of issue 17: raw; exact at raw-valid pixels; exact everywhere; exact + noise; inpainted.
+
+    Exact rungs carry σ_Z = ``exact_sigma_rel``·Z (a small floor, the depth is the truth); noisy rungs carry
+    their stated σ; raw and inpainted rungs carry the σ their map provides (if any).
+
+    "Exact" is the tracked point's true depth (:func:`true_track_depths`); features whose track is not a
+    consistent 3-D point have no exact depth and stay monocular in the exact rungs. ``depth-raw`` is what the
+    pipeline's run gets (SGBM depth at every raw-valid feature); ``depth-raw@tracked-point`` restricts it to the
+    features of ``exact@raw-valid``, so that those two differ in depth values only.
+
+    Chains checked for monotonicity (ATE must not grow as the depth error falls):
+    ``noise``: exact-everywhere ≤ +1 % ≤ +3 % ≤ +10 %; ``value``: exact@raw-valid ≤ depth-raw@tracked-point;
+    ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid.
+    """
+    def raw(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        fr = log.frames[i]
+        return fr.z_rect["raw"], fr.sigma_rect.get("raw")
+
+    def raw_tracked(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        fr = log.frames[i]
+        keep = log.truth_source[i] == 1
+        s = fr.sigma_rect.get("raw")
+        return np.where(keep, fr.z_rect["raw"], np.nan), None if s is None else np.where(keep, s, np.nan)
+
+    def exact_raw(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        fr = log.frames[i]
+        z = np.where(np.isfinite(fr.z_rect["raw"]) & (log.truth_source[i] == 1), log.truth[i], np.nan)
+        return z, exact_sigma_rel * z
+
+    def exact_all(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        z = np.where(log.truth_source[i] == 1, log.truth[i], np.nan)
+        return z, exact_sigma_rel * z
+
+    def noisy(level: float) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
+        def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+            z, _ = exact_all(log, i)
+            fr = log.frames[i]
+            # one draw per (noise seed, level, track seed, frame): reproducible, independent across seeds
+            rng = np.random.default_rng([noise_seed, int(round(level * 1e4)), log.seed, fr.index])
+            e = rng.standard_normal(len(z))
+            zn = z * (1.0 + level * e)
+            return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
+        return f
+
+    def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
+        def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+            fr = log.frames[i]
+            return fr.z_rect[name], fr.sigma_rect.get(name)
+        return f
+
+    rungs = [Rung("depth-raw", raw), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
+             Rung("exact@raw-valid", exact_raw, "value", 0), Rung("exact-everywhere", exact_all, "noise", 0)]
+    for k, lv in enumerate(noise_levels):
+        rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
+    for m in inpaint_methods:
+        rungs.append(Rung(f"inpainted[{m}]", inpainted(m)))
+    return rungs
+
+
+def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
+                use_sigma: bool = True) -> tuple[Trajectory, str | None, dict[str, Any]]:
+    """Feed the recorded tracks with the rung's depths and the IMU to a fresh back end.
+
+    Returns (IMU trajectory, divergence reason or None, per-run statistics: depth coverage, gate counts).
+    """
+    filt = MsckfFilter(config, rig.T_left_imu, rig.T_right_left)
+    stamps: list[float] = []
+    ps: list[np.ndarray] = []
+    qs: list[np.ndarray] = []
+    imu = log.imu
+    k = 0
+    n_depth = n_feat = n_gated = 0
+    g_ratio: list[np.ndarray] = []
+    failure = None
+    try:
+        for i, fr in enumerate(log.frames):
+            while k < len(imu) and imu[k, 0] <= fr.stamp_s:
+                try:
+                    filt.feed_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
+                except NonStaticStartError:
+                    pass
+                k += 1
+            z_rect, sig_rect = rung.depth(log, i)
+            z_rect = np.asarray(z_rect, dtype=np.float64)
+            z0, xy1 = depth_to_stereo(fr.xy0, z_rect, rig.R_left, rig.T_right_left)
+            has = np.isfinite(z0)
+            src = np.where(has, DepthSource.DEPTH_MAP, DepthSource.MONO).astype(np.uint8)
+            sig0 = None
+            if use_sigma and sig_rect is not None:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sig0 = np.where(has, np.asarray(sig_rect, dtype=np.float64) * z0 / z_rect, np.nan)
+            obs = _observations(fr, xy1, z0, src, sig0)
+            pose = filt.feed_features(obs)
+            n_depth += int(has.sum())
+            n_feat += len(has)
+            n_gated += filt.last_stats.n_gated_out
+            for g, dof in zip(filt.last_stats.gate_gamma, filt.last_stats.gate_dof):
+                ok = dof > 0
+                g_ratio.append(g[ok] / dof[ok])
+            if pose is not None:
+                stamps.append(pose.stamp_s)
+                ps.append(pose.p_world)
+                qs.append(pose.q_world_imu_xyzw)
+    except FilterDivergedError as exc:
+        failure = exc.reason
+    traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
+                      np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
+    gr = np.concatenate(g_ratio) if g_ratio else np.zeros(0)
+    gr = gr[np.isfinite(gr)]
+    return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
+                           "gamma_per_dof_median": float(np.median(gr)) if len(gr) else float("nan"),
+                           "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan")}
+
+
+def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,
+                  sigma0: np.ndarray | None) -> FeatureObservations:
+    kwargs: dict[str, Any] = {}
+    if sigma0 is not None and "depth_sigma_m" in FeatureObservations.__dataclass_fields__:
+        kwargs["depth_sigma_m"] = sigma0
+    return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, **kwargs)
+
+
+def evaluate_rung(traj: Trajectory, gt_path: str, lever_arm_imu: Any) -> float:
+    """ATE RMSE (m) as a run computes it: SE(3) alignment, 20 ms association, estimate at the antenna."""
+    opts = EvalOptions(align="se3", max_diff_s=0.02,
+                       lever_arm_m=tuple(lever_arm_imu) if lever_arm_imu is not None else None)
+    return float(evaluate(read_tum(gt_path), traj, opts).metrics()["ate_rmse_m"])

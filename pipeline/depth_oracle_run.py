@@ -1,0 +1,212 @@
+"""The oracle ladder on a simulated sequence: inputs from the cache, every rung × seed, the monotonicity verdict.
+
+Used by ``benchmarks/bench_depth_oracle.py`` and its test. The ATE is computed against the simulator's *true*
+antenna positions (``gt_antenna_true.tum``: no RTK noise, so the rungs are compared without a shared noise
+floor), with the pipeline's alignment (SE(3), 20 ms, estimate at the antenna).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from msckf.config import MsckfConfig, load_config
+from pipeline.bag_reader import RosarioSequence
+from pipeline.depth import DepthParams
+from pipeline.depth_cache import DepthCache, depth_stream
+from pipeline.depth_oracle import (Rung, TrackLog, evaluate_rung, record_tracks, run_backend, standard_rungs,
+                                   true_track_depths)
+from pipeline.depth_sigma import DepthSigmaModel
+from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+from pipeline.run_job import lever_arms_from_tf
+from pipeline.sim.sequence import SimulatedSequence
+
+__all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference", "default_config"]
+
+
+def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
+                   seeds: Iterable[int], max_frames: int | None = None,
+                   sigma_model: DepthSigmaModel | None = None) -> dict[str, Any]:
+    """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
+
+    Depth and inpainted caches are computed when missing (the pipeline's own stages and caches).
+    """
+    sim = SimulatedSequence(Path(sim_dir))
+    seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
+    rig = seq.calibration
+    for _ in depth_stream(seq, DepthParams(), cache=True, progress=False, cache_root=cache_root,
+                          stop_index=max_frames):
+        pass
+    for m in methods:
+        for _ in inpainted_stream(seq, InpaintParams(method=m), cache_root, progress=False):
+            pass
+    raw = DepthCache(cache_root, seq.identity(), DepthParams())
+    inp = {m: DepthCache(cache_root, seq.identity(), InpaintParams(method=m)) for m in methods}
+    model = sigma_model or DepthSigmaModel.for_rig(rig)
+
+    def raw_provider(i: int):
+        f = raw.get(i)
+        return f.depth_m, f.valid, model.raw_sigma(f.depth_m, f.valid)
+
+    def inp_provider(m: str):
+        def p(i: int):
+            f = inp[m].get(i)
+            r = raw.get(i)
+            return f.depth_m, f.valid, model.filled_sigma(f.depth_m, r.valid, m)
+        return p
+
+    def exact_provider(i: int):
+        d = sim.depth(i)
+        return d, np.isfinite(d) & (d > 0), None
+
+    truth = sim.truth
+    stamp_to_k = {int(s): k for k, s in enumerate(truth["frame_stamp_ns"])}
+    frames = []
+    T_world_rect: dict[int, np.ndarray] = {}
+    for fr in seq.stereo_frames(stop_index=max_frames):
+        k = stamp_to_k.get(int(fr.stamp_ns))
+        if k is None:
+            raise ValueError(f"{sim_dir}: frame {fr.index} (stamp {fr.stamp_ns}) has no simulator truth")
+        T_world_rect[fr.index] = truth["T_E_rectleft"][k]
+        grey = cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY) if fr.left_bgr.ndim == 3 else fr.left_bgr
+        frames.append((fr.index, fr.stamp_ns * 1e-9, grey))
+    imu = seq.imu_array()
+    logs: dict[int, TrackLog] = {}
+    truth_stats: dict[int, dict[str, float]] = {}
+    for seed in seeds:
+        log = record_tracks(rig, config, seed, imu, frames, raw_provider,
+                            {m: inp_provider(m) for m in methods})
+        truth_stats[seed] = true_track_depths(log, rig.K_rect, T_world_rect, exact_provider,
+                                              config.frontend.min_depth_m, config.frontend.max_depth_m)
+        logs[seed] = log
+    lever = lever_arms_from_tf(seq).get("lever_arm_imu")
+    return {"logs": logs, "rig": rig, "gt": str(sim.gt_antenna_true_path), "lever": lever,
+            "truth_stats": truth_stats, "depth_errors": _depth_errors(logs, methods)}
+
+
+def _depth_errors(logs: dict[int, TrackLog], methods: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Median |relative error| of each map's depth at tracked points against the tracked-point truth."""
+    out: dict[str, dict[str, float]] = {}
+    for name in ["raw", *methods]:
+        rel: list[np.ndarray] = []
+        for log in logs.values():
+            for fr, t, s in zip(log.frames, log.truth, log.truth_source):
+                z = fr.z_rect[name]
+                ok = np.isfinite(z) & np.isfinite(t) & (s == 1)
+                rel.append((z[ok] - t[ok]) / t[ok])
+        r = np.concatenate(rel) if rel else np.zeros(0)
+        out[name] = {"n": int(len(r)), "median_abs_rel": float(np.median(np.abs(r))) if len(r) else float("nan"),
+                     "median_rel": float(np.median(r)) if len(r) else float("nan")}
+    return out
+
+
+def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] | None = None,
+               methods: Sequence[str] = (), use_sigma: bool = True) -> dict[str, dict[str, Any]]:
+    """ATE RMSE of every rung for every seed: ``{rung: {"ate": {seed: m}, "failed": {seed: reason}, ...}}``."""
+    rungs = rungs or standard_rungs(methods)
+    out: dict[str, dict[str, Any]] = {}
+    for rung in rungs:
+        ate: dict[int, float] = {}
+        failed: dict[int, str] = {}
+        stats: dict[int, dict[str, Any]] = {}
+        for seed, log in prepared["logs"].items():
+            traj, failure, st = run_backend(log, rung, config, prepared["rig"], use_sigma=use_sigma)
+            stats[seed] = st
+            if failure is not None or len(traj.stamps_s) < 3:
+                failed[seed] = failure or "no poses"
+                continue
+            ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+        out[rung.name] = {"ate": ate, "failed": failed, "chain": rung.chain, "order": rung.order,
+                          "depth_fraction": float(np.mean([s["depth_fraction"] for s in stats.values()])),
+                          "gated_out": int(sum(s["gated_out"] for s in stats.values())),
+                          "gamma_per_dof_median": float(np.nanmedian([s["gamma_per_dof_median"]
+                                                                      for s in stats.values()]))}
+    return out
+
+
+def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float = 0.03
+                   ) -> tuple[bool, list[str]]:
+    """Is ATE non-increasing as depth error decreases, within the run-to-run spread? (per sequence and chain)
+
+    For every pair of neighbouring rungs of a chain (more accurate ``a``, less accurate ``b``) on every sequence,
+    the paired per-seed differences ``ATE_a − ATE_b`` must have a mean ≤ 2 standard errors of that mean plus
+    ``rel_tol`` × mean ATE_b (the spread of repeated runs). A failed run on the more accurate rung is a violation.
+
+    Returns (monotone, list of violations as text).
+    """
+    bad: list[str] = []
+    for seq_name, res in results.items():
+        chains: dict[str, list[tuple[int, str]]] = {}
+        if "exact-everywhere" in res and "exact@raw-valid" in res:
+            chains["coverage"] = [(0, "exact-everywhere"), (1, "exact@raw-valid")]
+        for name, r in res.items():
+            if r["chain"]:
+                chains.setdefault(r["chain"], []).append((r["order"], name))
+        for chain, members in chains.items():
+            members.sort()
+            for (_, a), (_, b) in zip(members, members[1:]):
+                ra, rb = res[a], res[b]
+                if ra["failed"]:
+                    bad.append(f"{seq_name}: {a} failed on seeds {sorted(ra['failed'])}")
+                    continue
+                seeds = sorted(set(ra["ate"]) & set(rb["ate"]))
+                if not seeds:
+                    continue
+                d = np.array([ra["ate"][s] - rb["ate"][s] for s in seeds])
+                se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
+                mb = float(np.mean([rb["ate"][s] for s in seeds]))
+                if float(d.mean()) > 2 * se + rel_tol * mb:
+                    bad.append(f"{seq_name}: {a} ({np.mean([ra['ate'][s] for s in seeds]):.4f} m) worse than "
+                               f"{b} ({mb:.4f} m): paired Δ {d.mean():+.4f} m > 2·SE {2 * se:.4f} + "
+                               f"{rel_tol:.0%} of {b}")
+    return not bad, bad
+
+
+def default_config(overrides: dict[str, Any] | None = None) -> MsckfConfig:
+    """The pipeline's VIO configuration with optional overrides (a mapping, as a --config YAML holds)."""
+    return load_config(overrides or None)
+
+
+def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], prepared: dict[str, Any],
+                     max_frames: int | None = None) -> dict[str, Any]:
+    """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs)."""
+    from msckf.errors import FilterDivergedError
+    from msckf.vio import Msckf
+    from eval.trajectory import Trajectory
+
+    sim = SimulatedSequence(Path(sim_dir))
+    seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
+    imu = seq.imu_array()
+    ate: dict[int, float] = {}
+    failed: dict[int, str] = {}
+    for seed in seeds:
+        vio = Msckf(config, seq.calibration, variant="stereo", seed=seed)
+        stamps, ps, qs = [], [], []
+        k = 0
+        try:
+            for fr in seq.stereo_frames(stop_index=max_frames):
+                t = fr.stamp_ns * 1e-9
+                while k < len(imu) and imu[k, 0] <= t:
+                    try:
+                        vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
+                    except Exception:  # NonStaticStartError: keep feeding, as a run does
+                        pass
+                    k += 1
+                left = cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY) if fr.left_bgr.ndim == 3 else fr.left_bgr
+                right = cv2.cvtColor(fr.right_bgr, cv2.COLOR_BGR2GRAY) if fr.right_bgr.ndim == 3 else fr.right_bgr
+                pose = vio.add_frame(t, left, right_grey=right)
+                if pose is not None:
+                    stamps.append(pose.stamp_s)
+                    ps.append(pose.p_world)
+                    qs.append(pose.q_world_imu_xyzw)
+        except FilterDivergedError as exc:
+            failed[seed] = exc.reason
+            continue
+        traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
+                          has_orientation=True)
+        ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+    return {"ate": ate, "failed": failed, "chain": "", "order": 0}

@@ -1,0 +1,104 @@
+"""The depth oracle ladder (pipeline/depth_oracle*.py): tracked-point truth, the monotonicity verdict, and the
+back-end replay of recorded tracks reproducing a real depth-raw run exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eval.trajectory import read_tum
+from pipeline.depth_oracle import Rung, TrackedFrame, TrackLog, run_backend, true_track_depths
+from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder
+
+K = np.array([[350.0, 0.0, 336.0], [0.0, 350.0, 188.0], [0.0, 0.0, 1.0]])
+
+
+def _pose(x: float) -> np.ndarray:
+    """Camera moving sideways along +x, looking along +z (rectified-left → world)."""
+    T = np.eye(4)
+    T[0, 3] = x
+    return T
+
+
+def _project(p: np.ndarray, T: np.ndarray) -> np.ndarray:
+    pc = T[:3, :3].T @ (p - T[:3, 3])
+    uv = K @ pc
+    return uv[:2] / uv[2]
+
+
+def _log_with(points_px: dict[int, list[np.ndarray]], n: int) -> TrackLog:
+    frames = []
+    for k in range(n):
+        ids = np.array(sorted(points_px), dtype=np.int64)
+        px = np.stack([points_px[i][k] for i in ids])
+        frames.append(TrackedFrame(0.1 * k, k, ids, np.zeros((len(ids), 2)), np.full(len(ids), k + 1, np.int32), px))
+    return TrackLog(frames, np.zeros((0, 7)))
+
+
+def test_tracked_point_truth_is_the_true_depth_and_sliding_tracks_get_none():
+    n = 10
+    poses = {k: _pose(0.05 * k) for k in range(n)}
+    point = np.array([0.3, -0.2, 2.5])
+    static = [_project(point, poses[k]) for k in range(n)]
+    # drifts 0.8 px a frame across the direction of motion: no static point explains it
+    sliding = [_project(point, poses[k]) + np.array([0.0, 0.8 * k]) for k in range(n)]
+    log = _log_with({1: static, 2: sliding}, n)
+    edge_map = np.full((376, 672), 2.9, np.float32)                     # an exact map that reads the background
+
+    def exact(_i):
+        return edge_map, np.ones_like(edge_map, bool), None
+
+    stats = true_track_depths(log, K, poses, exact_map=None)
+    for k, fr in enumerate(log.frames):
+        z_true = (poses[k][:3, :3].T @ (point - poses[k][:3, 3]))[2]
+        assert log.truth[k][0] == pytest.approx(z_true, rel=1e-6) and log.truth_source[k][0] == 1
+        assert np.isnan(log.truth[k][1]) and log.truth_source[k][1] == 0  # no consistent 3-D point: no truth
+    assert stats["triangulated"] == pytest.approx(0.5)
+    true_track_depths(log, K, poses, exact_map=exact)                 # with a fallback it is marked as such
+    assert log.truth_source[0][1] == 2 and log.truth[0][1] == pytest.approx(2.9)
+
+
+def _result(ate: dict[str, list[float]]) -> dict:
+    chains = {"exact-everywhere": ("noise", 0), "exact+1%": ("noise", 1), "exact+10%": ("noise", 2),
+              "exact@raw-valid": ("value", 0), "depth-raw@tracked-point": ("value", 1)}
+    return {name: {"ate": dict(enumerate(v)), "failed": {}, "chain": chains[name][0], "order": chains[name][1]}
+            for name, v in ate.items()}
+
+
+def test_ladder_verdict_accepts_a_monotone_ladder_and_names_a_violation():
+    good = _result({"exact-everywhere": [0.010, 0.011, 0.010], "exact+1%": [0.011, 0.011, 0.012],
+                    "exact+10%": [0.020, 0.022, 0.021], "exact@raw-valid": [0.012, 0.013, 0.012],
+                    "depth-raw@tracked-point": [0.015, 0.016, 0.015]})
+    assert ladder_verdict({"s": good}) == (True, [])
+    bad = _result({"exact-everywhere": [0.020, 0.021, 0.022], "exact+1%": [0.011, 0.011, 0.012],
+                   "exact+10%": [0.020, 0.022, 0.021], "exact@raw-valid": [0.012, 0.013, 0.012],
+                   "depth-raw@tracked-point": [0.015, 0.016, 0.015]})
+    ok, why = ladder_verdict({"s": bad})
+    assert not ok
+    assert any("exact-everywhere" in w and "exact+1%" in w for w in why)
+    assert any("exact-everywhere" in w and "exact@raw-valid" in w for w in why)   # the coverage chain
+
+
+def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_path, monkeypatch):
+    """The ladder is only meaningful if its back-end replay of recorded tracks *is* the depth-raw run: with the
+    same configuration the raw rung's trajectory equals the run's estimate.tum exactly."""
+    from pipeline.cli import main
+    from pipeline.sim_source import simulate_cached
+
+    monkeypatch.setenv("AGRIVIO_CACHE", str(sim_cache))
+    out = tmp_path / "runs"
+    code = main(["run-sequence", "tiny", "--out", str(out), "--runs", "1", "--variants", "depth-raw",
+                 "--workers", "1"])
+    assert code == 0
+    run_est = read_tum(out / "tiny" / "depth-raw" / "seed0" / "estimate.tum")
+    src = simulate_cached("tiny", cache_root=sim_cache, progress=False)
+    config = default_config()
+    prep = prepare_oracle(src.sim_dir, sim_cache, [], config, [0])
+    raw = Rung("depth-raw", lambda log, i: (log.frames[i].z_rect["raw"], log.frames[i].sigma_rect.get("raw")))
+    traj, failure, stats = run_backend(prep["logs"][0], raw, config, prep["rig"])
+    assert failure is None and stats["depth_fraction"] > 0.1
+    assert len(traj.stamps_s) == len(run_est.stamps_s)
+    np.testing.assert_array_equal(np.round(traj.positions, 6), np.round(run_est.positions, 6))
+    # and the whole ladder runs on it (values are not checked here: 0.8 s of motion is too short)
+    res = run_ladder(prep, config)
+    assert set(res) >= {"depth-raw", "exact-everywhere", "exact+10%"} and not res["depth-raw"]["failed"]
