@@ -344,3 +344,24 @@ def test_15_simulated_folder_is_a_source_and_records_say_only_what_applies(tmp_p
     record = _record(out, seq="sim")
     assert record["simulated"] is True and record["inpaint_method"] is None
     assert "inpaint_method" not in record["job"]
+
+
+# ---- 18. no rotation ATE that the alignment cannot determine ----------------------------------------------------
+def test_18_rotation_ate_on_a_straight_path_is_not_the_alignments_roll(tmp_path, capsys):
+    from scipy.spatial.transform import Rotation
+
+    from eval.trajectory import Trajectory, format_tum
+
+    rng = np.random.default_rng(0)
+    n = 300
+    t = 100.0 + 0.1 * np.arange(n)
+    p = np.column_stack([np.linspace(0.0, 30.0, n), 0.01 * np.sin(np.arange(n) / 20.0), np.zeros(n)])
+    q = Rotation.from_euler("xyz", np.column_stack([0.02 * np.sin(t), 0.01 * np.cos(t), 0.1 + 0.01 * t])).as_quat()
+    gt, est = tmp_path / "gt.tum", tmp_path / "est.tum"
+    gt.write_text(format_tum(Trajectory(t, p, q, has_orientation=True)))
+    est.write_text(format_tum(Trajectory(t, p + rng.normal(0.0, 0.02, p.shape), q, has_orientation=True)))
+    assert main(["evaluate", str(est), str(gt), "--json", str(tmp_path / "m.json")]) == 0
+    printed = capsys.readouterr().out
+    assert "after a posyaw alignment" in printed and "undetermined" in printed
+    metrics = json.loads((tmp_path / "m.json").read_text())["metrics"]
+    assert metrics["ate_rot_align"] == "posyaw" and metrics["ate_rot_rmse_deg"] < 0.5
