@@ -46,6 +46,13 @@ def _run(bag: Path, out: Path, *extra: str, variants: str = "odometry", runs: in
                  "--executor", "serial", *extra])
 
 
+def _error_line(err: str) -> str:
+    """The one ``agrivio: error`` line of a command's stderr (warnings and progress bars aside); no traceback."""
+    assert "Traceback" not in err
+    (line,) = [ln for ln in err.splitlines() if ln.startswith("agrivio: error")]
+    return line
+
+
 def _record(out: Path, seq: str = "seq", variant: str = "odometry", seed: int = 0) -> dict:
     return json.loads((out / seq / variant / f"seed{seed}" / "record.json").read_text())
 
@@ -91,7 +98,7 @@ def test_02_compare_counts_a_copied_run_folder_once_and_refuses_conflicts(tmp_pa
     assert "2/2" in md and "4/4" not in md
     _fake_record(runs / "copy" / "depth-raw" / "seed0", "depth-raw", 0, 0.9)  # same run, other result
     assert main(["compare", str(runs), "--no-trajectories"]) == 2
-    err = capsys.readouterr().err.strip()
+    err = _error_line(capsys.readouterr().err)
     assert str(runs / "a" / "depth-raw" / "seed0") in err and str(runs / "copy" / "depth-raw" / "seed0") in err
 
 
@@ -147,8 +154,8 @@ def test_06_bad_msckf_config_is_refused_before_any_compute(tmp_path, cache, caps
     config = tmp_path / "msckf.yaml"
     config.write_text(text)
     assert _run(bag, tmp_path / "runs", "--config", str(config), variants="depth-raw") == 2
-    err = capsys.readouterr().err.strip()
-    assert str(config) in err and word in err and len(err.splitlines()) == 1
+    err = _error_line(capsys.readouterr().err)
+    assert str(config) in err and word in err
     assert not (cache / "depth").exists()  # no depth computed
     assert not list((tmp_path / "runs").rglob("record.json"))
 
@@ -169,8 +176,8 @@ def test_07_bad_ground_truth_is_refused_before_any_compute(tmp_path, cache, caps
     for gt, where in ((malformed, f"{malformed}:4"), (header, f"{header}:1"), (bom, f"{bom}:1"),
                       (far, "no time overlap"), (short, "at least 3")):
         assert _run(bag, tmp_path / "runs", "--gt", str(gt), variants="depth-raw") == 2, gt
-        err = capsys.readouterr().err.strip()
-        assert where in err and len(err.splitlines()) == 1, err
+        err = _error_line(capsys.readouterr().err)
+        assert where in err, err
     assert not (cache / "depth").exists()
     assert _run(bag, tmp_path / "runs", "--gt", str(_gt(tmp_path / "good.txt"))) == 0
 
@@ -183,8 +190,8 @@ def test_08_batch_yaml_types_and_ranges_are_checked(tmp_path, cache, capsys, lin
     config = tmp_path / "batch.yaml"
     config.write_text(f"out: runs\nsequences: [tiny]\n{line}\n")
     assert main(["batch", str(config)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert str(config) in err and key in err and len(err.splitlines()) == 1
+    err = _error_line(capsys.readouterr().err)
+    assert str(config) in err and key in err
     config.write_text("out: runs\nsequences: tiny\n")
     assert main(["batch", str(config)]) == 2
     assert "'sequences' must be a list" in capsys.readouterr().err
@@ -220,8 +227,8 @@ def test_05_disk_full_while_writing_the_report_is_one_line_and_keeps_the_runs(tm
     monkeypatch.setattr(compare, "write_text_atomic", full)
     assert _run(bag, out) == 2
     err = capsys.readouterr().err.strip()
-    (line,) = [ln for ln in err.splitlines() if ln.startswith("agrivio: error")]
-    assert "No space left on device" in line and str(out / "report") in line and "Traceback" not in err
+    line = _error_line(err)
+    assert "No space left on device" in line and str(out / "report") in line
     assert _record(out)["status"] == "ok"  # the run is kept
     assert not list((out / "report").glob(".report*"))  # no temporary left behind
 
@@ -365,3 +372,36 @@ def test_18_rotation_ate_on_a_straight_path_is_not_the_alignments_roll(tmp_path,
     assert "after a posyaw alignment" in printed and "undetermined" in printed
     metrics = json.loads((tmp_path / "m.json").read_text())["metrics"]
     assert metrics["ate_rot_align"] == "posyaw" and metrics["ate_rot_rmse_deg"] < 0.5
+
+
+# ---- 17. an inconsistent camchain is said, with which transform is used ------------------------------------------
+def test_17_inconsistent_camchain_is_warned_about_once(tmp_path, capsys, rosario_rig):
+    import pipeline.calibration as calibration
+    from pipeline.paths import ROSARIO_CAMCHAIN
+
+    calibration._WARNED.clear()
+    calibration.read_camchain(ROSARIO_CAMCHAIN)
+    calibration.read_camchain(ROSARIO_CAMCHAIN)
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert str(ROSARIO_CAMCHAIN) in line and "0.29°" in line and "using cam0/T_cam_imu and cam1/T_cn_cnm1" in line
+    consistent = tmp_path / "camchain.yaml"
+    calibration.write_camchain(rosario_rig, consistent)  # cam1/T_cam_imu = T_cn_cnm1 · cam0/T_cam_imu
+    calibration.read_camchain(consistent)
+    assert capsys.readouterr().err == ""
+
+
+# ---- 16. the EuRoC export's IMU noise describes the data --------------------------------------------------------
+def test_16_euroc_imu_noise_figures_include_the_simulated_vibration(tmp_path, rosario_rig):
+    import yaml
+
+    from pipeline.sim.config import ImuConfig
+    from pipeline.sim.export import EurocWriter
+
+    imu = ImuConfig()
+    writer = EurocWriter(tmp_path / "euroc", rosario_rig, imu, 15.0, max_speed_m_s=0.9)
+    writer.close()
+    meta = yaml.safe_load((tmp_path / "euroc" / "mav0" / "imu0" / "sensor.yaml").read_text())
+    per_sample = meta["accelerometer_noise_density"] * np.sqrt(meta["rate_hz"])  # m/s² per sample
+    assert per_sample >= 0.9 * imu.vibration_acc_rms * 0.9  # the vibration seen while moving is covered
+    assert meta["agrivio_accelerometer_noise_density_sensor"] == imu.acc_noise_density
+    assert "vibration" in meta["comment"]
