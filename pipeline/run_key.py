@@ -12,14 +12,18 @@ The key of a ``(sequence, variant, seed)`` run is :func:`eval.records.config_has
 * ``msckf``: the fully resolved MSCKF configuration (defaults + ``--config``), for VIO variants;
 * ``depth``: the depth stage's parameter key (:meth:`DepthParams.key`), for ``depth-*`` variants;
 * ``inpaint``: the inpainting parameter key (method, options, stage version, weights), for ``depth-inpainted``;
-* ``code_version`` (``git describe --dirty`` or the package version), ``variant`` and ``seed``.
+* ``code_version``: :func:`code_fingerprint` (``git describe --dirty`` or the package version, plus a hash of the
+  uncommitted changes to the four packages, so two different edits of a dirty checkout never share a key),
+  ``variant`` and ``seed``.
 
 Only the parts a variant uses enter its key: changing the inpainting method does not invalidate stereo runs.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +41,34 @@ def file_digest(path: Path | str | None) -> str | None:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+#: The packages whose code determines a run's outputs.
+CODE_DIRS = ("pipeline", "msckf", "inpaint", "eval")
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """:func:`pipeline.version.code_version`, plus ``+<hash>`` of uncommitted changes under :data:`CODE_DIRS`.
+
+    ``git describe --dirty`` says only *that* the checkout differs from its commit; the hash says *how*, so a
+    record made before an uncommitted edit is not reused after it.
+    """
+    from pipeline.paths import REPO_ROOT
+    from pipeline.version import code_version
+
+    version = code_version()
+    if not version.endswith("-dirty"):
+        return version
+    digest = hashlib.blake2b(digest_size=6)
+    try:
+        for cmd in (["git", "diff", "HEAD", "--", *CODE_DIRS],
+                    ["git", "ls-files", "--others", "--exclude-standard", "--", *CODE_DIRS]):
+            out = subprocess.run(cmd, cwd=REPO_ROOT, capture_output=True, timeout=20, check=True).stdout
+            digest.update(out)
+    except (OSError, subprocess.SubprocessError):
+        return version
+    return f"{version}+{digest.hexdigest()}"
 
 
 def sequence_key_parts(bag_identity: str, gt: Path | str | None, camchain: Path | str, max_frames: int | None,

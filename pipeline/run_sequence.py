@@ -27,10 +27,9 @@ from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
 from pipeline.paths import ROSARIO_CAMCHAIN
 from pipeline.run_job import VARIANTS, RunInputs, lever_arms_from_tf, run_job
-from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
+from pipeline.run_key import code_fingerprint, input_key, job_key_parts, sequence_key_parts
 from pipeline.sources import ResolvedSource, resolve_source
 from pipeline.validate import check_ground_truth, check_msckf_config, check_output_dir, check_positive_int
-from pipeline.version import code_version
 
 DEFAULT_VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 
@@ -155,7 +154,7 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     key_parts = sequence_key_parts(
         seq.identity(), src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, dict(levers),
         check_msckf_config(msckf_config), DepthParams().key(),
-        InpaintParams(method=inpaint_method).key() if "depth-inpainted" in variants else None, code_version())
+        InpaintParams(method=inpaint_method).key() if "depth-inpainted" in variants else None, code_fingerprint())
     return PreparedSequence(spec.name or src.name, src, inputs, n_frames, timings, depth_stats, key_parts,
                             checked.quality)
 

@@ -321,6 +321,10 @@ def test_12_imu_gaps_repeats_and_nan_are_reported(tmp_path, cache, rosario_rig):
     q = measure(RosarioSequence(bag))
     assert q["imu"]["gaps"] == 1 and q["imu"]["max_gap_s"] == pytest.approx(0.305, abs=0.006)
     assert q["imu"]["repeated_stamps"] == 4
+    from pipeline.data_quality import frame_gaps
+
+    stamps = T0_NS + np.delete(np.arange(20), [5, 11, 12]) * 66_666_667  # three camera frames dropped
+    assert frame_gaps(stamps)["dropped"] == 3
     bag_nan = _offset_bag(tmp_path / "nan.bag", rosario_rig, 0, nan_at=7)
     with pytest.raises(BagError, match=r"nan\.bag: /imu sample at stamp 1600000000035000000 ns"):
         measure(RosarioSequence(bag_nan))
