@@ -169,8 +169,9 @@ def _warn_if_inconsistent(path: Path, T_right_imu: np.ndarray, T_chained: np.nda
     if (deg > CAMCHAIN_TOL_DEG or m > CAMCHAIN_TOL_M) and key not in _WARNED:
         _WARNED.add(key)
         print(f"warning: {path}: cam1/T_cam_imu differs from cam1/T_cn_cnm1 · cam0/T_cam_imu by {deg:.2f}° and "
-              f"{m * 1e3:.1f} mm (camera centre); using cam0/T_cam_imu and cam1/T_cn_cnm1 (the direct camera-to-camera estimate "
-              f"that rectification needs, as S-MSCKF does); cam1/T_cam_imu is ignored", file=sys.stderr)
+              f"{m * 1e3:.1f} mm (camera centre); using cam0/T_cam_imu and cam1/T_cn_cnm1 (the direct "
+              f"camera-to-camera estimate that rectification needs, as S-MSCKF does); cam1/T_cam_imu is ignored",
+              file=sys.stderr)
 
 
 def read_camchain(path: Path | str) -> Camchain:

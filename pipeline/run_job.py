@@ -54,7 +54,7 @@ class RunInputs:
         gt: ground-truth TUM file (Rosario: GPS antenna positions), or None (then no metrics).
         camchain: Kalibr camchain YAML (None: the shipped Rosario one).
         cache_root: the cache root holding the depth and inpainted-depth caches.
-        inpaint_method: method of the ``depth-inpainted`` variant.
+        inpaint_method: method of the ``depth-inpainted`` variant (None when that variant is not run).
         msckf_config: a YAML file overriding MSCKF defaults, or None.
         lever_arm_imu: (3,) GPS antenna position in the IMU frame, metres (None: compare IMU positions directly).
         lever_arm_base: (3,) antenna in base_link (for the ``odometry`` variant), metres, or None.
@@ -66,7 +66,7 @@ class RunInputs:
     gt: str | None
     camchain: str | None
     cache_root: str
-    inpaint_method: str = "paper"
+    inpaint_method: str | None = "paper"
     msckf_config: str | None = None
     lever_arm_imu: tuple[float, float, float] | None = None
     lever_arm_base: tuple[float, float, float] | None = None

@@ -150,7 +150,8 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     levers = src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq)
     inputs = RunInputs(bag=str(src.bag), gt=str(src.gt) if src.gt else None,
                        camchain=str(src.camchain) if src.camchain else None, cache_root=str(cache_root),
-                       inpaint_method=inpaint_method, msckf_config=msckf_config, max_frames=max_frames, **levers)
+                       inpaint_method=inpaint_method if "depth-inpainted" in variants else None,
+                       msckf_config=msckf_config, max_frames=max_frames, **levers)
     key_parts = sequence_key_parts(
         seq.identity(), src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, dict(levers),
         check_msckf_config(msckf_config), DepthParams().key(),
