@@ -19,6 +19,7 @@ Errors are :class:`CalibrationError` (an ``AgrivioError``), whose message names 
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -151,6 +152,7 @@ def _transform(value: Any, path: Path, name: str) -> np.ndarray:
 CAMCHAIN_TOL_DEG = 0.05
 CAMCHAIN_TOL_M = 0.5e-3
 _WARNED: set[str] = set()  # camchain files already warned about in this process
+_WARNED_ENV = "AGRIVIO_CAMCHAIN_WARNED"  # ... and in its parent (spawned workers inherit the environment)
 
 
 def camchain_discrepancy(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
@@ -166,8 +168,11 @@ def camchain_discrepancy(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float
 def _warn_if_inconsistent(path: Path, T_right_imu: np.ndarray, T_chained: np.ndarray) -> None:
     deg, m = camchain_discrepancy(T_right_imu, T_chained)
     key = str(path.resolve())
-    if (deg > CAMCHAIN_TOL_DEG or m > CAMCHAIN_TOL_M) and key not in _WARNED:
+    # worker processes inherit the environment: a camchain the parent warned about is not warned about again
+    inherited = set(os.environ.get(_WARNED_ENV, "").split(os.pathsep)) - {""}
+    if (deg > CAMCHAIN_TOL_DEG or m > CAMCHAIN_TOL_M) and key not in _WARNED | inherited:
         _WARNED.add(key)
+        os.environ[_WARNED_ENV] = os.pathsep.join(sorted(_WARNED | inherited))
         print(f"warning: {path}: cam1/T_cam_imu differs from cam1/T_cn_cnm1 · cam0/T_cam_imu by {deg:.2f}° and "
               f"{m * 1e3:.1f} mm (camera centre); using cam0/T_cam_imu and cam1/T_cn_cnm1 (the direct "
               f"camera-to-camera estimate that rectification needs, as S-MSCKF does); cam1/T_cam_imu is ignored",

@@ -379,11 +379,12 @@ def test_18_rotation_ate_on_a_straight_path_is_not_the_alignments_roll(tmp_path,
 
 
 # ---- 17. an inconsistent camchain is said, with which transform is used ------------------------------------------
-def test_17_inconsistent_camchain_is_warned_about_once(tmp_path, capsys, rosario_rig):
+def test_17_inconsistent_camchain_is_warned_about_once(tmp_path, capsys, monkeypatch, rosario_rig):
     import pipeline.calibration as calibration
     from pipeline.paths import ROSARIO_CAMCHAIN
 
     calibration._WARNED.clear()
+    monkeypatch.delenv(calibration._WARNED_ENV, raising=False)
     calibration.read_camchain(ROSARIO_CAMCHAIN)
     calibration.read_camchain(ROSARIO_CAMCHAIN)
     (line,) = capsys.readouterr().err.strip().splitlines()
