@@ -144,7 +144,8 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
                                   stats=stats, stop_index=max_frames):
             pass
         timings["inpaint_s"] = time.perf_counter() - t0
-        timings["inpaint_frames_computed"] = stats.get("computed", 0)
+        depth_stats["inpainted_frames"] = {"computed": int(stats.get("computed", 0)),
+                                           "cached": int(stats.get("cached", 0))}
         if stats.get("computed"):
             timings["inpaint_ms_per_frame"] = 1e3 * stats["compute_s"] / stats["computed"]
     levers = src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq)
