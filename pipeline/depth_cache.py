@@ -88,7 +88,6 @@ class DepthCache:
         self.chunk_size = int(meta.get("chunk_size", chunk_size)) if meta else int(chunk_size)
         self._pending: dict[int, dict[int, _Encoded]] = {}
         self._loaded: tuple[int, dict[int, _Encoded]] | None = None
-        self._corrupt = False  # set when a damaged chunk was found (its frames read as missing)
 
     # ---- metadata ----------------------------------------------------------------------------------------------
     @property
@@ -156,7 +155,6 @@ class DepthCache:
                 print(f"warning: {path}: corrupt depth-cache chunk ({type(exc).__name__}: {exc}); it is "
                       f"recomputed", file=sys.stderr)
                 frames = {}
-                self._corrupt = True
         self._loaded = (chunk, frames)
         return frames
 
