@@ -15,6 +15,8 @@ from typing import Any
 def atomic_path(target: Path | str, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path next to ``target``; on success it is renamed onto ``target``, on error removed.
 
+    An ``OSError`` without a file name (e.g. ENOSPC from a write) is re-raised naming ``target``.
+
     ``suffix`` keeps the extension libraries use to pick a format (e.g. ``.npz``, ``.bag``).
     """
     target = Path(target)
@@ -26,6 +28,11 @@ def atomic_path(target: Path | str, suffix: str = "") -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, target)
+    except OSError as exc:
+        if exc.errno is None or exc.filename is not None:
+            raise
+        # a failed write() (disk full) names no file: name the target, so the user knows what was not written
+        raise OSError(exc.errno, exc.strerror, str(target)) from exc
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -404,6 +404,29 @@ class RosarioSequence:
         finally:
             reader.close()
 
+    def header_stamps_ns(self, topic: str) -> np.ndarray:
+        """(N,) int64 header stamps (ns) of every message on ``topic``, in bag order, without deserialising them.
+
+        Every Rosario message with a header starts with it (ROS1: ``uint32 seq, uint32 sec, uint32 nsec``), so the
+        stamp is read from bytes 4..12 of the raw message; images are not decoded (cheap next to the depth stage).
+        """
+        wanted = {L.normalize_topic(topic)}
+        reader = self._open_reader(wanted)
+        out: list[int] = []
+        try:
+            conns = [c for c in reader.connections if L.normalize_topic(c.topic) in wanted]
+            if conns:
+                for _, _, raw in reader.messages(connections=conns):
+                    sec, nsec = struct.unpack_from("<II", raw, 4)
+                    out.append(sec * 1_000_000_000 + nsec)
+        except (ReaderError, struct.error, AssertionError, ValueError, OSError, EOFError, KeyError,
+                IndexError) as exc:
+            raise self._err(f"cannot read message on {topic} (truncated or corrupt data: "
+                            f"{type(exc).__name__}: {exc})") from None
+        finally:
+            reader.close()
+        return np.asarray(out, dtype=np.int64)
+
     def _image(self, msg: Any, topic: str, size_hw: tuple[int, int]) -> np.ndarray:
         h, w = int(msg.height), int(msg.width)
         if msg.encoding != L.IMAGE_ENCODING:

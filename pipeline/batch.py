@@ -1,8 +1,11 @@
 """Run a matrix of jobs (sequences × variants × seeds) in isolation, resumably, locally or on Ray.
 
 Each job writes exactly one record file (JSON), atomically, when it ends — ``status: ok`` or ``status: failed``
-with the reason. A batch that is killed and restarted with the same jobs skips every job whose record exists and
-redoes only the unfinished ones, so nothing already computed is lost.
+with the reason. A batch that is killed and restarted with the same jobs skips every job whose record is reusable
+and redoes the others, so nothing already computed is lost. A record is reusable when it is ``ok`` (a failed one
+is retried unless ``keep_failed``) and, if the job carries an input key (``options["input_key"]``, see
+:mod:`pipeline.run_key`), when the record was made with the same key: a record of other inputs (another bag of
+the same name, other frames, GT, config, method or code) is recomputed, never reported as if it were current.
 
 Isolation: a job's Python exception becomes a failed record and the batch goes on. A worker process that dies
 (segfault, OOM kill) breaks a ``ProcessPoolExecutor``; the jobs it held are then recorded as failed with that reason
@@ -29,6 +32,8 @@ from pipeline.errors import AgrivioError
 from pipeline.process_pool import spawn_pool
 
 RECORD_NAME = "record.json"
+#: The job option (and record field) holding the run's input key (see :mod:`pipeline.run_key`).
+INPUT_KEY = "input_key"
 EXECUTORS = ("local", "serial", "ray")
 
 
@@ -81,6 +86,7 @@ def failed_record(job: Job, reason: str, elapsed_s: float | None = None) -> dict
         "seed": job.seed,
         "status": "failed",
         "failure_reason": reason,
+        "input_key": job.options.get(INPUT_KEY),
         "timings": {"total_s": elapsed_s} if elapsed_s is not None else {},
         "job": asdict(job),
     }
@@ -105,28 +111,62 @@ def run_isolated(run_fn: RunFn, job: Job, write: bool = True) -> dict[str, Any]:
     return record
 
 
-def pending_jobs(jobs: Iterable[Job]) -> tuple[list[Job], list[Job]]:
-    """Split jobs into (done, pending) by the presence of a complete record."""
+def reuse_verdict(job: Job, keep_failed: bool = False) -> str:
+    """Whether ``job``'s existing record can stand: ``"reuse"``, or why it is (re)run: ``"missing"`` (no complete
+    record), ``"failed"`` (a failed record, retried unless ``keep_failed``) or ``"stale"`` (made from other inputs:
+    its input key differs from the job's)."""
+    record = load_record(job.record_path)
+    if record is None:
+        return "missing"
+    wanted = job.options.get(INPUT_KEY)
+    if wanted is not None and record.get(INPUT_KEY) != wanted:
+        return "stale"
+    if record.get("status") != "ok" and not keep_failed:
+        return "failed"
+    return "reuse"
+
+
+def pending_jobs(jobs: Iterable[Job], keep_failed: bool = False) -> tuple[list[Job], list[Job]]:
+    """Split jobs into (done, pending): done = a reusable record exists (see :func:`reuse_verdict`)."""
     done, pending = [], []
     for job in jobs:
-        (done if load_record(job.record_path) is not None else pending).append(job)
+        (done if reuse_verdict(job, keep_failed) == "reuse" else pending).append(job)
     return done, pending
 
 
+def _say_what_is_redone(jobs: Sequence[Job], keep_failed: bool) -> list[Job]:
+    """The pending jobs; one line on stderr when records are redone because they failed or are stale."""
+    import sys
+
+    verdicts = [reuse_verdict(job, keep_failed) for job in jobs]
+    n_stale, n_failed = verdicts.count("stale"), verdicts.count("failed")
+    if n_stale:
+        print(f"note: {n_stale} existing record(s) were made from other inputs (bag, GT, frames, config, method or "
+              f"code version differ) and are recomputed", file=sys.stderr)
+    if n_failed:
+        print(f"note: {n_failed} failed record(s) are retried (--keep-failed keeps them)", file=sys.stderr)
+    pending = [job for job, v in zip(jobs, verdicts) if v != "reuse"]
+    for job in pending:  # a failed or stale record must not pass for this run's outcome if the run dies
+        job.record_path.unlink(missing_ok=True)
+    return pending
+
+
 def run_jobs(jobs: Sequence[Job], run_fn: RunFn, executor: str = "local", workers: int | None = None,
-             ray_address: str | None = None, progress: bool = True) -> list[dict[str, Any]]:
-    """Run every job that has no record yet; return all records (old and new) in job order.
+             ray_address: str | None = None, progress: bool = True,
+             keep_failed: bool = False) -> list[dict[str, Any]]:
+    """Run every job without a reusable record (see :func:`reuse_verdict`); return all records in job order.
 
     Args:
         executor: ``local`` (process pool, default ``workers`` = all cores), ``serial`` (this process), or ``ray``.
         ray_address: for ``ray``: a cluster address (``ray://host:10001`` or ``auto``); None starts a local instance.
+        keep_failed: reuse failed records instead of retrying them.
     """
     if executor not in EXECUTORS:
         raise AgrivioError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
     labels = [job.label for job in jobs]
     if len(set(labels)) != len(labels) or len({job.out_dir for job in jobs}) != len(jobs):
         raise AgrivioError("the batch holds duplicate jobs (same sequence/variant/seed or output folder)")
-    _, pending = pending_jobs(jobs)
+    pending = _say_what_is_redone(jobs, keep_failed)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(pending), desc="runs", unit="run", disable=not progress)
     try:
         if pending:

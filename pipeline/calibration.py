@@ -4,7 +4,11 @@ Conventions (Kalibr, see rosario.md §4):
 
 * ``camX/T_cam_imu`` (4×4) maps IMU-frame points into camera X; ``cam1/T_cn_cnm1`` maps cam0 points into cam1.
   The rig uses ``T_left_imu = cam0/T_cam_imu`` and ``T_right_left = cam1/T_cn_cnm1`` (as S-MSCKF does; the
-  redundant ``cam1/T_cam_imu`` is read but not used for the rig).
+  redundant ``cam1/T_cam_imu`` is read but not used for the rig). When ``cam1/T_cam_imu`` disagrees with
+  ``cam1/T_cn_cnm1 · cam0/T_cam_imu`` by more than :data:`CAMCHAIN_TOL_DEG` / :data:`CAMCHAIN_TOL_M` (the shipped
+  Rosario camchain: 0.29°, camera centres 1.5 mm apart — 1.8 mm between the translation vectors), one warning
+  line per file says so and which one is used: the stereo extrinsic ``T_cn_cnm1`` that Kalibr estimates
+  directly between the cameras, which rectification needs.
 * ``intrinsics: [fx, fy, cx, cy]`` in pixels of the raw (distorted) image; ``distortion_model: radtan`` with
   ``distortion_coeffs: [k1, k2, p1, p2]``; ``resolution: [width, height]``.
 * ``camera_info``: K (3×3), D (plumb_bob ``k1 k2 p1 p2 k3``), R (3×3 rectification rotation), P (3×4 rectified
@@ -15,6 +19,8 @@ Errors are :class:`CalibrationError` (an ``AgrivioError``), whose message names 
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -142,6 +148,37 @@ def _transform(value: Any, path: Path, name: str) -> np.ndarray:
     return T
 
 
+#: Largest disagreement between ``cam1/T_cam_imu`` and ``cam1/T_cn_cnm1 · cam0/T_cam_imu`` left unmentioned.
+CAMCHAIN_TOL_DEG = 0.05
+CAMCHAIN_TOL_M = 0.5e-3
+_WARNED: set[str] = set()  # camchain files already warned about in this process
+_WARNED_ENV = "AGRIVIO_CAMCHAIN_WARNED"  # ... and in its parent (spawned workers inherit the environment)
+
+
+def camchain_discrepancy(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(rotation angle in degrees, translation in metres) of ``T_a · T_b⁻¹`` for two 4×4 transforms.
+
+    For two camera-from-IMU transforms the translation is the distance between the two camera centres.
+    """
+    D = T_a @ np.linalg.inv(T_b)
+    cos = np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos))), float(np.linalg.norm(D[:3, 3]))
+
+
+def _warn_if_inconsistent(path: Path, T_right_imu: np.ndarray, T_chained: np.ndarray) -> None:
+    deg, m = camchain_discrepancy(T_right_imu, T_chained)
+    key = str(path.resolve())
+    # worker processes inherit the environment: a camchain the parent warned about is not warned about again
+    inherited = set(os.environ.get(_WARNED_ENV, "").split(os.pathsep)) - {""}
+    if (deg > CAMCHAIN_TOL_DEG or m > CAMCHAIN_TOL_M) and key not in _WARNED | inherited:
+        _WARNED.add(key)
+        os.environ[_WARNED_ENV] = os.pathsep.join(sorted(_WARNED | inherited))
+        print(f"warning: {path}: cam1/T_cam_imu differs from cam1/T_cn_cnm1 · cam0/T_cam_imu by {deg:.2f}° and "
+              f"{m * 1e3:.1f} mm (camera centre); using cam0/T_cam_imu and cam1/T_cn_cnm1 (the direct "
+              f"camera-to-camera estimate that rectification needs, as S-MSCKF does); cam1/T_cam_imu is ignored",
+              file=sys.stderr)
+
+
 def read_camchain(path: Path | str) -> Camchain:
     """Parse a Kalibr camchain YAML with ``cam0`` (left) and ``cam1`` (right)."""
     path = Path(path)
@@ -156,6 +193,7 @@ def read_camchain(path: Path | str) -> Camchain:
     T_right_left = _transform(_get(cam1, "T_cn_cnm1", path, "cam1/"), path, "cam1/T_cn_cnm1")
     if "T_cam_imu" in cam1:
         T_right_imu = _transform(cam1["T_cam_imu"], path, "cam1/T_cam_imu")
+        _warn_if_inconsistent(path, T_right_imu, T_right_left @ T_left_imu)
     else:
         T_right_imu = T_right_left @ T_left_imu
     return Camchain(left, right, T_left_imu, T_right_left, T_right_imu,

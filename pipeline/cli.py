@@ -8,12 +8,17 @@ User errors (``AgrivioError`` and the libraries' input errors) are printed witho
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import pkgutil
 import sys
 
 from pipeline import commands
 from pipeline.errors import AgrivioError
+
+
+#: OSError numbers that mean "the output cannot be written" (reported in one line, exit 2).
+_DISK_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS}
 
 
 def _user_error_types() -> tuple[type[BaseException], ...]:
@@ -50,6 +55,14 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except _user_error_types() as exc:
         print(f"agrivio: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.errno not in _DISK_ERRNOS:
+            raise
+        # disk full, no permission, read-only file system: the user's environment, not a bug; what was written
+        # before stays (every output is written atomically)
+        where = exc.filename or "output"
+        print(f"agrivio: error: {where}: {exc.strerror or exc}; files written before this are kept", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("agrivio: interrupted; results written so far are kept", file=sys.stderr)

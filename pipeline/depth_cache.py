@@ -15,7 +15,10 @@ includes the stage and OpenCV versions), so a changed bag or parameter never rea
 from __future__ import annotations
 
 import json
+import sys
 import time
+import zipfile
+import zlib
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -108,6 +111,27 @@ class DepthCache:
         n = self._read_meta().get("n_frames")
         return int(n) if n is not None else None
 
+    def has_frames(self, stop: int | None, verify: bool = False) -> bool:
+        """True when frames ``0 .. stop-1`` are all stored (``stop`` None: the whole sequence).
+
+        A cache marked complete (``n_frames``) is trusted unless ``verify``; otherwise the chunk files are read
+        (their zip CRC-32 checked, images not decoded) and a damaged chunk counts as missing frames.
+        """
+        n = self.n_frames
+        if stop is None:
+            if n is None:
+                return False
+            stop = n
+        elif n is not None:
+            stop = min(stop, n)  # the sequence has only n frames
+        if n is not None and not verify:
+            return True
+        for chunk in range((stop + self.chunk_size - 1) // self.chunk_size):
+            frames = self._pending.get(chunk) or self._load_chunk(chunk)
+            if any(i not in frames for i in range(chunk * self.chunk_size, min((chunk + 1) * self.chunk_size, stop))):
+                return False
+        return True
+
     def mark_complete(self, n_frames: int) -> None:
         """Record that frames ``0 .. n_frames-1`` are all stored."""
         self._write_meta(n_frames=int(n_frames))
@@ -126,8 +150,11 @@ class DepthCache:
                 with np.load(path) as z:
                     for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist())):
                         frames[int(index)] = _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"])
-            except (OSError, KeyError, ValueError, EOFError):
-                frames = {}  # a damaged chunk is recomputed
+            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+                # a truncated or garbled chunk (zip CRC-32 / structure check) is said once and recomputed
+                print(f"warning: {path}: corrupt depth-cache chunk ({type(exc).__name__}: {exc}); it is "
+                      f"recomputed", file=sys.stderr)
+                frames = {}
         self._loaded = (chunk, frames)
         return frames
 
@@ -247,7 +274,8 @@ def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool
             yield frame
         if store is not None:
             store.flush()
-            if start_index == 0 and stop_index is None:  # every frame 0 .. n_seen-1 is now stored
+            # every frame 0 .. n_seen-1 is now stored, and the sequence ended there (not at stop_index)
+            if start_index == 0 and (stop_index is None or n_seen < stop_index):
                 store.mark_complete(n_seen)
     finally:
         if store is not None:

@@ -73,7 +73,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
             raise ValueError(f"{sim_dir}: frame {fr.index} (stamp {fr.stamp_ns}) has no simulator truth")
         T_world_rect[fr.index] = truth["T_E_rectleft"][k]
         grey = cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY) if fr.left_bgr.ndim == 3 else fr.left_bgr
-        frames.append((fr.index, fr.stamp_ns * 1e-9, grey))
+        frames.append((fr.index, fr.stamp_ns / 1e9, grey))  # as a run converts image stamps
     imu = seq.imu_array()
     logs: dict[int, TrackLog] = {}
     truth_stats: dict[int, dict[str, float]] = {}
@@ -189,7 +189,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
         k = 0
         try:
             for fr in seq.stereo_frames(stop_index=max_frames):
-                t = fr.stamp_ns * 1e-9
+                t = fr.stamp_ns / 1e9
                 while k < len(imu) and imu[k, 0] <= t:
                     try:
                         vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])

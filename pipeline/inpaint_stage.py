@@ -73,11 +73,13 @@ def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
 
 
 def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
-                     stats: dict[str, Any] | None = None, workers: int | None = None) -> Iterator[DepthFrame]:
+                     stats: dict[str, Any] | None = None, workers: int | None = None,
+                     stop_index: int | None = None) -> Iterator[DepthFrame]:
     """Inpainted depth frames of ``sequence`` in order: from the cache, or computed from the raw depth and cached.
 
     Frames are independent, so missing ones are inpainted on a process pool of ``workers`` (default: all cores);
-    the result does not depend on the number of workers.
+    the result does not depend on the number of workers. ``stop_index``: only frames ``0 .. stop_index-1`` (the
+    runs' ``--max-frames``); the cache is marked complete only when the whole sequence was seen.
     """
     if params.method not in METHODS:
         raise AgrivioError(f"unknown inpainting method {params.method!r}; available: {', '.join(sorted(METHODS))}")
@@ -87,12 +89,15 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
     st["directory"] = str(store.directory)
     n_total = store.n_frames
     if n_total is not None:
-        for frame in store.iter(0, n_total):
-            st["cached"] += 1
-            yield frame
-        return
+        stop = n_total if stop_index is None else min(n_total, stop_index)
+        if store.has_frames(stop, verify=True):  # a corrupt chunk reads as missing and is recomputed below
+            for frame in store.iter(0, stop):
+                st["cached"] += 1
+                yield frame
+            return
     n_workers = max(1, workers or os.cpu_count() or 1)
-    raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root)
+    raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root,
+                       stop_index=stop_index)
     n = 0
     pool = spawn_pool(n_workers) if n_workers > 1 else None
     try:
@@ -117,7 +122,8 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
         if pool is not None:
             pool.shutdown()
     store.flush()
-    store.mark_complete(n)
+    if stop_index is None or n < stop_index:  # the whole sequence was seen
+        store.mark_complete(n)
 
 
 def params_summary(params: InpaintParams) -> dict[str, Any]:

@@ -40,6 +40,8 @@ from pipeline.odometry_ekf import run_odometry_ekf
 from pipeline.version import code_version
 
 VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
+#: Job options copied to the record's top level (see :mod:`pipeline.run_key`, :mod:`pipeline.data_quality`).
+_RECORD_OPTIONS = ("input_key", "input_key_parts", "data_quality", "simulated")
 ESTIMATE_NAME = "estimate.tum"
 FRAMES_NAME = "frames.npz"
 
@@ -53,7 +55,7 @@ class RunInputs:
         gt: ground-truth TUM file (Rosario: GPS antenna positions), or None (then no metrics).
         camchain: Kalibr camchain YAML (None: the shipped Rosario one).
         cache_root: the cache root holding the depth and inpainted-depth caches.
-        inpaint_method: method of the ``depth-inpainted`` variant.
+        inpaint_method: method of the ``depth-inpainted`` variant (None when that variant is not run).
         msckf_config: a YAML file overriding MSCKF defaults, or None.
         lever_arm_imu: (3,) GPS antenna position in the IMU frame, metres (None: compare IMU positions directly).
         lever_arm_base: (3,) antenna in base_link (for the ``odometry`` variant), metres, or None.
@@ -65,7 +67,7 @@ class RunInputs:
     gt: str | None
     camchain: str | None
     cache_root: str
-    inpaint_method: str = "paper"
+    inpaint_method: str | None = "paper"
     msckf_config: str | None = None
     lever_arm_imu: tuple[float, float, float] | None = None
     lever_arm_base: tuple[float, float, float] | None = None
@@ -148,7 +150,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
         depth_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams())
     elif job.variant == "depth-inpainted":
         depth_store = DepthCache(inputs.cache_root, seq.identity(), InpaintParams(method=inputs.inpaint_method))
-    if depth_store is not None and depth_store.n_frames is None:
+    if depth_store is not None and not depth_store.has_frames(inputs.max_frames):
         raise AgrivioError(f"{seq.path}: the {job.variant} depth cache is missing or incomplete "
                            f"({depth_store.directory}); run the depth/inpainting stage first")
     # Per-pixel depth σ (pipeline/depth_sigma.py): the raw validity mask travels with the inpainted map, so the
@@ -163,7 +165,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     k_imu = 0
     try:
         for frame in seq.stereo_frames(stop_index=inputs.max_frames):
-            t_img = frame.stamp_ns * 1e-9
+            t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's (imu_array)
             while k_imu < len(imu) and imu[k_imu, 0] <= t_img:
                 try:
                     vio.add_imu(imu[k_imu, 0], imu[k_imu, 1:4], imu[k_imu, 4:7])
@@ -176,14 +178,16 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                 pose = vio.add_frame(t_img, left, right_grey=_grey(frame.right_bgr))
             else:
                 d = depth_store.get(frame.index)
-                if d is None:
-                    raise AgrivioError(f"{seq.path}: depth cache has no frame {frame.index}")
+                if d is None or d.stamp_ns != frame.stamp_ns:  # joined by stamp (integer ns), never by index only
+                    raise AgrivioError(f"{seq.path}: depth cache has no frame {frame.index} at stamp "
+                                       f"{frame.stamp_ns} ns" + (f" (it holds {d.stamp_ns} ns)" if d else ""))
                 if raw_store is None:
                     sigma = sigma_model.raw_sigma(d.depth_m, d.valid)
                 else:
                     r = raw_store.get(frame.index)
-                    if r is None:
-                        raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index}")
+                    if r is None or r.stamp_ns != frame.stamp_ns:
+                        raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
+                                           f"{frame.stamp_ns} ns")
                     sigma = sigma_model.filled_sigma(d.depth_m, r.valid, inputs.inpaint_method)
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
@@ -263,8 +267,9 @@ def run_job(job: Job) -> dict[str, Any]:
         estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
         gt_path=str(Path(inputs.gt).resolve()) if inputs.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
-               "frames": int(len(log.stamps)), "job": {"source": job.source, **{k: v for k, v in job.options.items()
-                                                                                if k != "R_base_imu"}}},
+               "frames": int(len(log.stamps)), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
+               "job": {"source": job.source, **{k: v for k, v in job.options.items()
+                                                if k != "R_base_imu" and k not in _RECORD_OPTIONS}}},
     )
     return record.to_dict()
 

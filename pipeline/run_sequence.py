@@ -9,6 +9,7 @@ comparison report with :mod:`eval`.
 from __future__ import annotations
 
 import json
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -18,13 +19,17 @@ from typing import Any
 from tqdm import tqdm
 
 from pipeline.bag_reader import RosarioSequence
-from pipeline.batch import Job, run_jobs
+from pipeline.batch import INPUT_KEY, Job, failed_record, run_jobs
+from pipeline.data_quality import check_stereo_pairing, sequence_quality
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+from pipeline.paths import ROSARIO_CAMCHAIN
 from pipeline.run_job import VARIANTS, RunInputs, lever_arms_from_tf, run_job
+from pipeline.run_key import code_fingerprint, input_key, job_key_parts, sequence_key_parts
 from pipeline.sources import ResolvedSource, resolve_source
+from pipeline.validate import check_ground_truth, check_msckf_config, check_output_dir, check_positive_int
 
 DEFAULT_VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 
@@ -43,7 +48,11 @@ class SequenceSpec:
 
 @dataclass
 class PreparedSequence:
-    """A sequence whose depth (and inpainted depth) caches are complete."""
+    """A sequence whose depth (and inpainted depth) caches are complete (up to ``max_frames``).
+
+    ``key_parts`` are the sequence-level parts of every run's input key (:mod:`pipeline.run_key`); ``quality`` is
+    the bag's data-quality summary (:mod:`pipeline.data_quality`).
+    """
 
     name: str
     source: ResolvedSource
@@ -51,20 +60,65 @@ class PreparedSequence:
     n_frames: int
     stage_timings: dict[str, float] = field(default_factory=dict)
     depth_stats: dict[str, Any] = field(default_factory=dict)
+    key_parts: dict[str, Any] = field(default_factory=dict)
+    quality: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class CheckedSequence:
+    """A sequence whose inputs passed every up-front check (bag, calibration, stereo pairing, IMU, GT)."""
+
+    spec: SequenceSpec
+    source: ResolvedSource
+    quality: dict[str, Any]
+    source_s: float
+
+
+def user_error_types() -> tuple[type[BaseException], ...]:
+    """The exception types that mean "bad input" (one line, exit 2), not a bug."""
+    from eval.errors import EvalInputError
+    from msckf.errors import MsckfInputError
+
+    return (AgrivioError, EvalInputError, MsckfInputError, FileNotFoundError)
+
+
+def check_variants(variants: Sequence[str]) -> None:
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad:
+        raise AgrivioError(f"unknown variant(s) {', '.join(bad)}; choose from {', '.join(VARIANTS)}")
+
+
+def check_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path, progress: bool = True
+                   ) -> CheckedSequence:
+    """Resolve the source and check its inputs before any depth, inpainting or VIO work.
+
+    Opens the bag (container, topics, camera_info, calibration), measures its data quality (stereo pairing, IMU
+    NaN / gaps / repeated stamps, dropped frames) and checks the GT file against the bag's time span.
+    """
+    check_variants(variants)
+    t0 = time.perf_counter()
+    src = resolve_source(spec.source, gt=spec.gt, camchain=spec.camchain, duration_s=spec.duration_s,
+                         seed=spec.sim_seed, cache_root=cache_root, progress=progress)
+    source_s = time.perf_counter() - t0
+    seq = RosarioSequence(src.bag, camchain=src.camchain)
+    _ = seq.calibration  # camera_info × camchain, checked now rather than in every worker
+    quality = sequence_quality(seq, cache_root)
+    if any(v != "odometry" for v in variants):
+        check_stereo_pairing(src.bag, quality)
+    if src.gt is not None:
+        check_ground_truth(src.gt, seq.start_ns / 1e9, seq.end_ns / 1e9)
+    return CheckedSequence(spec, src, quality, source_s)
 
 
 def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path, inpaint_method: str = "paper",
                      msckf_config: str | None = None, max_frames: int | None = None,
-                     progress: bool = True) -> PreparedSequence:
-    """Resolve the source and fill the caches the variants need (depth for depth-*, inpainting for depth-inpainted)."""
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad:
-        raise AgrivioError(f"unknown variant(s) {', '.join(bad)}; choose from {', '.join(VARIANTS)}")
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    src = resolve_source(spec.source, gt=spec.gt, camchain=spec.camchain, duration_s=spec.duration_s,
-                         seed=spec.sim_seed, cache_root=cache_root, progress=progress)
-    timings["source_s"] = time.perf_counter() - t0
+                     progress: bool = True, checked: CheckedSequence | None = None) -> PreparedSequence:
+    """Fill the caches the variants need (depth for depth-*, inpainting for depth-inpainted), frames
+    ``0 .. max_frames-1`` only when ``max_frames`` is given. ``checked``: the result of :func:`check_sequence`
+    (run now when None)."""
+    checked = checked or check_sequence(spec, variants, cache_root, progress)
+    src = checked.source
+    timings: dict[str, float] = {"source_s": checked.source_s}
     seq = RosarioSequence(src.bag, camchain=src.camchain)
     n_frames = seq.count("/stereo/left/image_raw")
     if max_frames is not None:
@@ -73,7 +127,8 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     if any(v.startswith("depth") for v in variants):
         t0 = time.perf_counter()
         holes = []
-        for frame in depth_stream(seq, DepthParams(), cache=True, progress=progress, cache_root=cache_root):
+        for frame in depth_stream(seq, DepthParams(), cache=True, progress=progress, cache_root=cache_root,
+                                  stop_index=max_frames):
             holes.append(frame.hole_ratio)
         timings["depth_s"] = time.perf_counter() - t0
         if holes:
@@ -86,25 +141,39 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
         t0 = time.perf_counter()
         stats: dict[str, Any] = {}
         for _ in inpainted_stream(seq, InpaintParams(method=inpaint_method), cache_root, progress=progress,
-                                  stats=stats):
+                                  stats=stats, stop_index=max_frames):
             pass
         timings["inpaint_s"] = time.perf_counter() - t0
+        depth_stats["inpainted_frames"] = {"computed": int(stats.get("computed", 0)),
+                                           "cached": int(stats.get("cached", 0))}
         if stats.get("computed"):
             timings["inpaint_ms_per_frame"] = 1e3 * stats["compute_s"] / stats["computed"]
     levers = src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq)
     inputs = RunInputs(bag=str(src.bag), gt=str(src.gt) if src.gt else None,
                        camchain=str(src.camchain) if src.camchain else None, cache_root=str(cache_root),
-                       inpaint_method=inpaint_method, msckf_config=msckf_config, max_frames=max_frames, **levers)
-    return PreparedSequence(spec.name or src.name, src, inputs, n_frames, timings, depth_stats)
+                       inpaint_method=inpaint_method if "depth-inpainted" in variants else None,
+                       msckf_config=msckf_config, max_frames=max_frames, **levers)
+    key_parts = sequence_key_parts(
+        seq.identity(), src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, dict(levers),
+        check_msckf_config(msckf_config), DepthParams().key(),
+        InpaintParams(method=inpaint_method).key() if "depth-inpainted" in variants else None, code_fingerprint())
+    return PreparedSequence(spec.name or src.name, src, inputs, n_frames, timings, depth_stats, key_parts,
+                            checked.quality)
 
 
 def plan_jobs(prepared: PreparedSequence, variants: Sequence[str], seeds: Sequence[int], out_dir: Path) -> list[Job]:
+    """One job per variant × seed; each carries its input key (and only the options that apply to it)."""
     jobs = []
     for variant in variants:
         for seed in seeds:
             folder = out_dir / prepared.name / variant / f"seed{seed}"
-            jobs.append(Job(prepared.name, prepared.source.source, variant, int(seed), str(folder),
-                            prepared.inputs.to_options()))
+            options = prepared.inputs.to_options()
+            if variant != "depth-inpainted":
+                options.pop("inpaint_method")
+            parts = job_key_parts(prepared.key_parts, variant, int(seed))
+            options.update({INPUT_KEY: input_key(parts), "input_key_parts": parts,
+                            "data_quality": prepared.quality, "simulated": prepared.source.simulated})
+            jobs.append(Job(prepared.name, prepared.source.source, variant, int(seed), str(folder), options))
     return jobs
 
 
@@ -116,22 +185,82 @@ def write_sequence_manifest(prepared: PreparedSequence, out_dir: Path) -> None:
         "name": prepared.name, "source": prepared.source.source, "bag": str(prepared.source.bag),
         "gt": str(prepared.source.gt) if prepared.source.gt else None, "simulated": prepared.source.simulated,
         "n_frames": prepared.n_frames, "stage_timings": prepared.stage_timings, "depth": prepared.depth_stats,
-        "inputs": prepared.inputs.to_options(),
+        "inputs": prepared.inputs.to_options(), "input_key_parts": prepared.key_parts,
+        "data_quality": prepared.quality,
     })
+
+
+def _spec_name(spec: SequenceSpec) -> str:
+    if spec.name:
+        return spec.name
+    name = Path(spec.source).name
+    return name.split(".bag")[0] if ".bag" in name else name
+
+
+def _failed_sequence_records(spec: SequenceSpec, reason: str, variants: Sequence[str], seeds: Sequence[int],
+                             out_dir: Path) -> list[dict[str, Any]]:
+    """Failed records (written) for every run of a sequence whose inputs were refused; retried next time."""
+    from pipeline.atomic import write_json_atomic
+
+    records = []
+    for variant in variants:
+        for seed in seeds:
+            job = Job(_spec_name(spec), spec.source, variant, int(seed),
+                      str(out_dir / _spec_name(spec) / variant / f"seed{seed}"))
+            record = failed_record(job, reason)
+            write_json_atomic(job.record_path, record)
+            records.append(record)
+    return records
 
 
 def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Sequence[int], out_dir: Path,
                cache_root: Path, inpaint_method: str = "paper", msckf_config: str | None = None,
                executor: str = "local", workers: int | None = None, ray_address: str | None = None,
-               max_frames: int | None = None, progress: bool = True) -> list[dict[str, Any]]:
-    """Prepare every sequence, then run every (sequence, variant, seed) job; return the records."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+               max_frames: int | None = None, progress: bool = True, keep_going: bool = False,
+               keep_failed: bool = False) -> list[dict[str, Any]]:
+    """Check every input, prepare every sequence, then run every (sequence, variant, seed) job; return the records.
+
+    Options, the MSCKF config and every sequence's inputs are checked first, before any depth, inpainting or VIO
+    work. ``keep_going`` (batches): a sequence whose inputs are refused (or whose depth stage fails on bad data)
+    is recorded as failed runs with the reason and the others go on; otherwise the error is raised. Failed records
+    are retried unless ``keep_failed``.
+    """
+    from inpaint import METHODS
+
+    check_variants(variants)
+    check_positive_int("max_frames", max_frames)
+    check_positive_int("workers", workers)
+    if "depth-inpainted" in variants and inpaint_method not in METHODS:
+        raise AgrivioError(f"unknown inpainting method {inpaint_method!r}; available: {', '.join(sorted(METHODS))}")
+    check_msckf_config(msckf_config)
+    check_output_dir(out_dir)
+    user_errors = user_error_types()
+    failed: list[dict[str, Any]] = []
+    checked: list[CheckedSequence] = []
+    for spec in specs:
+        try:
+            checked.append(check_sequence(spec, variants, cache_root, progress))
+        except user_errors as exc:
+            if not keep_going:
+                raise
+            print(f"agrivio: sequence {spec.source} refused: {exc}", file=sys.stderr)
+            failed += _failed_sequence_records(spec, f"{type(exc).__name__}: {exc}", variants, seeds, out_dir)
     jobs: list[Job] = []
-    for spec in tqdm(specs, desc="sequences", unit="seq", disable=not progress or len(specs) < 2):
-        prepared = prepare_sequence(spec, variants, cache_root, inpaint_method, msckf_config, max_frames, progress)
+    for c in tqdm(checked, desc="sequences", unit="seq", disable=not progress or len(checked) < 2):
+        try:
+            prepared = prepare_sequence(c.spec, variants, cache_root, inpaint_method, msckf_config, max_frames,
+                                        progress, checked=c)
+        except user_errors as exc:
+            if not keep_going:
+                raise
+            print(f"agrivio: sequence {c.spec.source} failed: {exc}", file=sys.stderr)
+            failed += _failed_sequence_records(c.spec, f"{type(exc).__name__}: {exc}", variants, seeds, out_dir)
+            continue
         write_sequence_manifest(prepared, out_dir)
         jobs += plan_jobs(prepared, variants, seeds, out_dir)
-    return run_jobs(jobs, run_job, executor=executor, workers=workers, ray_address=ray_address, progress=progress)
+    records = run_jobs(jobs, run_job, executor=executor, workers=workers, ray_address=ray_address,
+                       progress=progress, keep_failed=keep_failed) if jobs else []
+    return records + failed
 
 
 def load_manifest(out_dir: Path, name: str) -> dict[str, Any]:

@@ -49,9 +49,41 @@ def _bag_path(source: str) -> Path | None:
     return None
 
 
+def _sim_meta(folder: Path) -> dict[str, Any] | None:
+    """The simulator's ``meta.json`` of ``folder`` (None when it is not a finished simulated sequence)."""
+    import json
+
+    try:
+        meta = json.loads((folder / "meta.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return meta if isinstance(meta, dict) and "simulator_version" in meta and "files" in meta else None
+
+
+def _simulated_folder(folder: Path, gt: str | None, camchain: str | None, source: str) -> ResolvedSource:
+    """A folder written by ``agrivio simulate --out``: its bag, GT and camchain are found inside."""
+    from pipeline.sim.sequence import SimulatedSequence
+
+    if _sim_meta(folder) is None:
+        raise AgrivioError(f"{folder}: a folder, but not one written by `agrivio simulate` (no valid meta.json); "
+                           f"give a bag file or a simulator preset")
+    if gt or camchain:
+        raise AgrivioError(f"{folder}: --gt/--camchain apply to bags; a simulated folder brings its own")
+    sim = SimulatedSequence(folder)
+    for path in (sim.bag_path, sim.gt_path, sim.camchain_path):
+        if not path.is_file():
+            raise AgrivioError(f"{path}: missing from the simulated folder")
+    return ResolvedSource(source, sim.name, sim.bag_path, sim.gt_path, sim.camchain_path, simulated=True,
+                          sim_dir=folder)
+
+
 def resolve_source(source: str, gt: str | None = None, camchain: str | None = None, duration_s: float | None = None,
                    seed: int = 0, cache_root: Path | None = None, progress: bool = True) -> ResolvedSource:
-    """A bag path (with ``gt``/``camchain`` files) or a simulator preset name (simulated into ``cache_root``)."""
+    """A bag path (with ``gt``/``camchain`` files), a folder written by ``agrivio simulate --out``, or a simulator
+    preset name (simulated into ``cache_root``)."""
+    folder = Path(source).expanduser()
+    if folder.is_dir():
+        return _simulated_folder(folder, gt, camchain, source)
     bag = _bag_path(source)
     if bag is not None:
         gt_path = Path(gt).expanduser() if gt else None
@@ -61,7 +93,10 @@ def resolve_source(source: str, gt: str | None = None, camchain: str | None = No
         if cam is not None and not cam.is_file():
             raise AgrivioError(f"{cam}: camchain file not found")
         name = bag.name.split(".bag")[0] if ".bag" in bag.name else bag.stem
-        return ResolvedSource(source, name, bag, gt_path, cam, simulated=False)
+        # a bag that `agrivio simulate` wrote is simulated, whichever way it is named
+        simulated = _sim_meta(bag.parent) is not None and _sim_meta(bag.parent).get("files", {}).get("bag") == bag.name
+        return ResolvedSource(source, name, bag, gt_path, cam, simulated=simulated,
+                              sim_dir=bag.parent if simulated else None)
     from pipeline.sim.presets import PRESETS
 
     if source not in PRESETS:

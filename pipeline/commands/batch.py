@@ -18,7 +18,10 @@ Config (paths relative to the config file)::
         gt: /data/rosario/sequence01_gt.txt
         name: rosario-01
 
-Killed and restarted with the same config, it redoes only the runs that have no record yet.
+Killed and restarted with the same config, it redoes only the runs without a reusable record: failed runs are
+retried (``--keep-failed`` keeps them) and records made from other inputs are recomputed. A sequence whose inputs
+are refused (unreadable bag, bad GT, ...) is recorded as failed runs with the reason and the others go on; the exit
+status is then 1.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from typing import Any
 import yaml
 
 from pipeline.commands.compare import write_comparison_report
+from pipeline.commands.run_sequence import failure_summary
 from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
@@ -46,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--executor", choices=("local", "serial", "ray"), default=None, help="override the config")
     p.add_argument("--workers", type=int, default=None, help="override the config's local pool size")
     p.add_argument("--ray-address", default=None, help="override the config's Ray address")
+    p.add_argument("--keep-failed", action="store_true",
+                   help="keep failed run records instead of retrying them (default: retry)")
     p.set_defaults(func=run)
 
 
@@ -73,13 +79,15 @@ def load_batch_config(path: Path) -> dict[str, Any]:
     unknown = set(cfg) - _KEYS
     if unknown:
         raise AgrivioError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(_KEYS))}")
-    if not cfg.get("sequences"):
-        raise AgrivioError(f"{path}: 'sequences' must list at least one sequence")
-    if "out" not in cfg:
-        raise AgrivioError(f"{path}: 'out' (output folder) is required")
+    sequences = cfg.get("sequences")
+    if not isinstance(sequences, list) or not sequences:
+        raise AgrivioError(f"{path}: 'sequences' must be a list of at least one sequence (got "
+                           f"{type(sequences).__name__}: {str(sequences)[:60]!r})")
+    if "out" not in cfg or not isinstance(cfg["out"], str) or not cfg["out"].strip():
+        raise AgrivioError(f"{path}: 'out' (output folder) is required and must be a path")
     base = path.parent
     specs = []
-    for i, item in enumerate(cfg["sequences"]):
+    for i, item in enumerate(sequences):
         if isinstance(item, str):
             item = {"source": item}
         if not isinstance(item, dict) or "source" not in item:
@@ -87,22 +95,52 @@ def load_batch_config(path: Path) -> dict[str, Any]:
         bad = set(item) - _SEQ_KEYS
         if bad:
             raise AgrivioError(f"{path}: sequences[{i}]: unknown key(s) {', '.join(sorted(bad))}")
+        where = f"{path}: sequences[{i}]"
+        for key in ("source", "name", "gt", "camchain"):
+            if item.get(key) is not None and not isinstance(item[key], str):
+                raise AgrivioError(f"{where}.{key} must be a string, got {item[key]!r}")
+        duration = item.get("duration")
+        if duration is not None and (isinstance(duration, bool) or not isinstance(duration, (int, float))
+                                     or not duration > 0):
+            raise AgrivioError(f"{where}.duration must be a number of seconds > 0, got {duration!r}")
         specs.append(SequenceSpec(source=_relative(base, str(item["source"])), name=item.get("name"),
                                   gt=_relative(base, item.get("gt")), camchain=_relative(base, item.get("camchain")),
-                                  duration_s=item.get("duration"), sim_seed=int(item.get("sim_seed", 0))))
+                                  duration_s=duration,
+                                  sim_seed=_int(path, f"sequences[{i}].sim_seed", item.get("sim_seed", 0), 0)))
     if "seeds" in cfg:
-        seeds = [int(s) for s in cfg["seeds"]]
+        if not isinstance(cfg["seeds"], list):
+            raise AgrivioError(f"{path}: 'seeds' must be a list of integers, got {cfg['seeds']!r}")
+        seeds = [_int(path, "seeds[]", s, 0) for s in cfg["seeds"]]
+        if len(set(seeds)) != len(seeds):
+            raise AgrivioError(f"{path}: 'seeds' lists a seed twice: {cfg['seeds']!r}")
     else:
-        seeds = list(range(int(cfg.get("runs", 5))))
+        seeds = list(range(_int(path, "runs", cfg.get("runs", 5), 1)))
     if not seeds:
         raise AgrivioError(f"{path}: no seeds to run")
     variants = cfg.get("variants", list(DEFAULT_VARIANTS))
     if isinstance(variants, str):
-        variants = [v.strip() for v in variants.split(",")]
+        variants = [v.strip() for v in variants.split(",") if v.strip()]
+    if not isinstance(variants, list) or not variants or not all(isinstance(v, str) for v in variants):
+        raise AgrivioError(f"{path}: 'variants' must be a list of variant names, got {cfg.get('variants')!r}")
+    for key in ("inpaint", "msckf_config", "ray_address"):
+        if cfg.get(key) is not None and not isinstance(cfg[key], str):
+            raise AgrivioError(f"{path}: '{key}' must be a string, got {cfg[key]!r}")
+    executor = cfg.get("executor", "local")
+    if executor not in ("local", "serial", "ray"):
+        raise AgrivioError(f"{path}: 'executor' must be local, serial or ray, got {executor!r}")
+    workers = None if cfg.get("workers") is None else _int(path, "workers", cfg["workers"], 1)
+    max_frames = None if cfg.get("max_frames") is None else _int(path, "max_frames", cfg["max_frames"], 1)
     return {"specs": specs, "seeds": seeds, "variants": list(variants), "out": base / str(cfg["out"]),
             "inpaint": cfg.get("inpaint", "paper"), "msckf_config": _relative(base, cfg.get("msckf_config")),
-            "executor": cfg.get("executor", "local"), "workers": cfg.get("workers"),
-            "ray_address": cfg.get("ray_address"), "max_frames": cfg.get("max_frames")}
+            "executor": executor, "workers": workers, "ray_address": cfg.get("ray_address"),
+            "max_frames": max_frames}
+
+
+def _int(path: Path, key: str, value: object, minimum: int) -> int:
+    """``value`` as an integer ≥ ``minimum`` (YAML ints only: no strings, floats or booleans)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise AgrivioError(f"{path}: '{key}' must be an integer >= {minimum}, got {value!r}")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,8 +148,9 @@ def run(args: argparse.Namespace) -> int:
     records = run_matrix(cfg["specs"], cfg["variants"], cfg["seeds"], cfg["out"], cache_dir(),
                          inpaint_method=cfg["inpaint"], msckf_config=cfg["msckf_config"],
                          executor=args.executor or cfg["executor"], workers=args.workers or cfg["workers"],
-                         ray_address=args.ray_address or cfg["ray_address"], max_frames=cfg["max_frames"])
+                         ray_address=args.ray_address or cfg["ray_address"], max_frames=cfg["max_frames"],
+                         keep_going=True, keep_failed=args.keep_failed)
     report_dir, _ = write_comparison_report(cfg["out"], cfg["out"] / "report")
     n_failed = sum(1 for r in records if r.get("status") != "ok")
     print(f"\n{len(records)} runs ({n_failed} failed). Report: {report_dir / 'report.html'}")
-    return 0
+    return failure_summary(records)

@@ -1,7 +1,8 @@
 """``agrivio compare RUNS_DIR [--out DIR]``: five-run statistics and the before/after report of a runs folder.
 
 Reads every ``*.json`` under RUNS_DIR (any depth) that is a run record (``"record_type": "run"``), summarises
-ATE per sequence × variant (failed runs counted and listed), compares ``depth-raw`` with ``depth-inpainted``
+ATE per sequence × variant (a run found twice — same sequence, variant, method, seed and input key — counted
+once; failed runs counted and listed), compares ``depth-raw`` with ``depth-inpainted``
 (paper Table 2 layout, Welch test, bootstrap CI) and writes ``report.md``, ``report.html`` (self-contained),
 ``summary.json`` and ``figures/*.png`` into DIR (default RUNS_DIR/report). Records that point to their estimate
 and ground-truth TUM files (``estimate_path``, ``gt_path``, relative to the record) add trajectory plots.
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -23,6 +25,7 @@ from eval.report import build_report
 from eval.trajectory import read_tum
 from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
+from pipeline.run_identity import collapse_duplicates, inputs_section
 
 BENCH_NAMES = ("inpaint_bench.md", "inpaint_bench.json")
 DEFAULT_TITLE = "agrivio: does depth inpainting make the MSCKF VIO more accurate?"
@@ -155,11 +158,17 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
     found, notes = find_records(runs_dir, exclude=out)
     if not found:
         raise AgrivioError(f"{runs_dir}: no run records found (*.json with \"record_type\": \"run\")")
+    found, duplicates = collapse_duplicates(found)  # a copied run folder is one run, not two samples
+    notes += duplicates
+    for line in duplicates:
+        print(f"warning: {line}", file=sys.stderr)
+    section = inputs_section(found)
     evaluations: dict[tuple[str, str], Evaluation] = {}
     if trajectories:
         evaluations, more = load_evaluations(found)
         notes += more
-    report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=title, notes=notes)
+    report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=title, notes=notes,
+                          sections=[section] if section else [])
     fig_dir = out / "figures"
     for fig in report.figures:
         with atomic_path(fig_dir / f"{fig.name}.png", suffix=".png") as tmp:

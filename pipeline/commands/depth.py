@@ -12,7 +12,9 @@ import numpy as np
 from pipeline.atomic import write_json_atomic
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams
+from pipeline.data_quality import check_stereo_pairing, sequence_quality, summary_lines
 from pipeline.depth_cache import depth_stream
+from pipeline.paths import cache_dir
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -73,10 +75,16 @@ def run_depth(seq: RosarioSequence, params: DepthParams, *, cache: bool, cache_r
 
 def run(args: argparse.Namespace) -> int:
     seq = RosarioSequence(args.bag, camchain=args.camchain)
+    quality = sequence_quality(seq, args.out or cache_dir())
+    for line in summary_lines(quality):
+        print(line)
+    check_stereo_pairing(seq.path, quality)  # too few pairs: one line naming the offset, exit 2
     summary = run_depth(seq, DepthParams(), cache=not args.no_cache, cache_root=args.out,
                         max_frames=args.max_frames, progress=not args.quiet)
     print(f"bag                 {seq.path}")
     print_summary(summary)
+    if summary["frames"] == 0:
+        print("no depth frames (no stereo pairs in the requested range)")
     if summary["unpaired_left"] or summary["unpaired_right"]:
         print(f"unpaired images     left {summary['unpaired_left']}, right {summary['unpaired_right']} (skipped)")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ from eval.alignment import ALIGN_METHODS
 from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.trajectory import read_tum
 from pipeline.atomic import write_json_atomic
+from pipeline.rotation_check import roll_uncertainty_deg, rotation_is_determined
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -78,10 +80,24 @@ def run(args: argparse.Namespace) -> int:
     est = read_tum(args.estimate)
     gt = read_tum(args.ground_truth)
     ev = evaluate(gt, est, options)
-    print(format_evaluation(ev, str(args.estimate), str(args.ground_truth)))
+    text = format_evaluation(ev, str(args.estimate), str(args.ground_truth))
+    metrics = ev.metrics()
+    if ev.ate.rot is not None and not rotation_is_determined(ev.alignment.method, ev.ref.positions,
+                                                             ev.ate.trans.rmse):
+        # roll about the direction of travel is not fixed by a position fit on this path: the rotation ATE of
+        # that alignment measures the alignment; report it after a pos+yaw alignment (roll/pitch from gravity)
+        sigma = roll_uncertainty_deg(ev.ref.positions, ev.ate.trans.rmse)
+        r = evaluate(gt, est, dataclasses.replace(options, align="posyaw")).ate.rot
+        head, _, tail = text.partition("ATE rotation (deg)\n")
+        tail = tail.split("\n", 1)[1] if "\n" in tail else ""
+        text = (head + f"ATE rotation (deg), after a posyaw alignment: the {ev.alignment.method} fit leaves the roll "
+                f"about the direction of travel undetermined on this nearly straight path (±{sigma:.1f} deg)\n"
+                f"  rmse {r.rmse:.4f}   mean {r.mean:.4f}   max {r.max:.4f}" + ("\n" + tail if tail else ""))
+        metrics.update(ate_rot_rmse_deg=r.rmse, ate_rot_mean_deg=r.mean, ate_rot_align="posyaw")
+    print(text)
     if args.json is not None:
         payload = {"estimate": str(args.estimate), "ground_truth": str(args.ground_truth),
-                   "options": options.to_dict(), "metrics": ev.metrics(), "alignment": ev.alignment.to_dict()}
+                   "options": options.to_dict(), "metrics": metrics, "alignment": ev.alignment.to_dict()}
         write_json_atomic(args.json, json.loads(json.dumps(payload)))
         print(f"\nwrote {args.json}")
     return 0

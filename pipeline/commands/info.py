@@ -8,6 +8,7 @@ from pathlib import Path
 
 from pipeline.bag_reader import RosarioSequence
 from pipeline.calibration import summarize_rig
+from pipeline.data_quality import measure, summary_lines
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
         t = seq.topics[name]
         rate = (t.count - 1) / dur if dur > 0 and t.count > 1 else float("nan")
         print(f"{t.topic:<{width}}  {t.msgtype:<32} {t.count:>8d} {rate:>8.2f}")
+    print()
+    print("data quality (header stamps)")
+    for line in summary_lines(measure(seq)):
+        print(f"  {line}")
     print()
     print("calibration (camera_info K, D, R, P + camchain extrinsics)")
     print(summarize_rig(seq.calibration))

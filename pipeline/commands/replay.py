@@ -113,11 +113,11 @@ def replay_runs(run_dirs: Sequence[Path], out: Path, every: int = 1, max_frames:
     raw = filled = None
     if cache_root:
         raw_store = DepthCache(cache_root, seq.identity(), DepthParams())
-        raw = raw_store if raw_store.n_frames is not None else None
+        raw = raw_store if raw_store.get(0) is not None else None  # complete, or the first --max-frames frames
         methods = {i["record"].get("inpaint_method") for i, _, _ in loaded} - {None}
         method = next(iter(methods)) if methods else info.get("inpaint_method", "paper")
         fill_store = DepthCache(cache_root, seq.identity(), InpaintParams(method=method))
-        filled = fill_store if fill_store.n_frames is not None else None
+        filled = fill_store if fill_store.get(0) is not None else None
     n = seq.count("/stereo/left/image_raw") if max_frames is None else max_frames
     frames = tqdm(_frames(seq, raw, filled, max(1, every), max_frames), total=n // max(1, every),
                   desc="replay", unit="frame", disable=not progress, leave=False)

@@ -9,6 +9,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from pipeline.commands.compare import write_comparison_report
@@ -29,7 +30,10 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="local process pool (default), serial, or ray")
     p.add_argument("--workers", type=int, default=None, help="processes for the local executor (default: all cores)")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local instance)")
-    p.add_argument("--max-frames", type=int, default=None, help="use only the first N stereo frames")
+    p.add_argument("--max-frames", type=int, default=None,
+                   help="use only the first N stereo frames (every stage: depth, inpainting, VIO)")
+    p.add_argument("--keep-failed", action="store_true",
+                   help="keep failed run records instead of retrying them (default: retry)")
 
 
 def parse_variants(text: str) -> list[str]:
@@ -52,14 +56,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def check_run_options(args: argparse.Namespace) -> None:
+    """Ranges of the numeric options, before anything runs."""
     if args.runs < 1:
         raise AgrivioError("--runs must be at least 1")
+    if args.workers is not None and args.workers < 1:
+        raise AgrivioError("--workers must be at least 1")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise AgrivioError("--max-frames must be at least 1")
+
+
+def failure_summary(records: list[dict]) -> int:
+    """Print the end-of-job summary; return the exit status (1 when any requested run failed, else 0)."""
+    n_failed = sum(1 for r in records if r.get("status") != "ok")
+    if n_failed:
+        reasons = sorted({str(r.get("failure_reason") or "unknown")[:200] for r in records if r.get("status") != "ok"})
+        print(f"agrivio: {n_failed} of {len(records)} run(s) failed; first reason: {reasons[0]}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    check_run_options(args)
     spec = SequenceSpec(args.source, name=args.name, gt=args.gt, camchain=args.camchain, duration_s=args.duration)
     records = run_matrix([spec], parse_variants(args.variants), range(args.runs), args.out, cache_dir(),
                          inpaint_method=args.inpaint, msckf_config=args.config, executor=args.executor,
-                         workers=args.workers, ray_address=args.ray_address, max_frames=args.max_frames)
+                         workers=args.workers, ray_address=args.ray_address, max_frames=args.max_frames,
+                         keep_failed=args.keep_failed)
     report_dir, _ = write_comparison_report(args.out, args.out / "report")
     n_failed = sum(1 for r in records if r.get("status") != "ok")
     print(f"\n{len(records)} runs ({n_failed} failed). Report: {report_dir / 'report.html'}")
-    return 0
+    return failure_summary(records)

@@ -269,7 +269,8 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     depth_writer = DepthChunkWriter(root / "depth")
     for old in (root / "depth").glob("chunk_*.npz"):
         old.unlink()
-    euroc = EurocWriter(root / "euroc", rig, cfg.imu, 15.0) if export_euroc else None
+    top_speed = float(np.max(traj.planned_speed(np.arange(0.0, cfg.duration_s + 0.1, 0.1)), initial=0.0))
+    euroc = EurocWriter(root / "euroc", rig, cfg.imu, 15.0, max_speed_m_s=top_speed) if export_euroc else None
     imu_rows: list[np.ndarray] = []
     cam_poses_E = np.zeros((len(t_cam), 4, 4))
     bag_path = root / f"{name}.bag"
