@@ -5,7 +5,8 @@ metres, ``mask`` bool H×W (True = hole), ``guide`` an optional H×W or H×W×3 
 finite, with every known pixel returned unchanged. Bad input raises ``inpaint.errors.InpaintInputError``.
 
 ``METHODS`` maps names to methods; ``inpaint(depth, mask, guide=None, method="paper", **options)`` dispatches.
-Methods: ``paper`` (multi-scale block search + anisotropic gradient + neural PLIP fusion, ``inpaint.method``),
+Methods: ``paper`` (multi-scale block search + anisotropic gradient + neural PLIP fusion), ``paper-greedy`` (the
+same components in the original greedy, priority-ordered fill at full resolution, ``inpaint.method``),
 ``ebm`` (Criminisi 2004), ``telea`` and ``ns`` (OpenCV), ``biharmonic`` (scikit-image), ``ipbasic``
 (IP-Basic-style morphology). DeepFill v2 and EdgeConnect are not included: they need downloaded pretrained weights.
 """
@@ -25,6 +26,7 @@ InpaintMethod = Callable[..., np.ndarray]
 
 METHODS: dict[str, InpaintMethod] = {
     "paper": inpaint_paper,
+    "paper-greedy": inpaint_paper,
     "ebm": inpaint_ebm,
     "telea": inpaint_telea,
     "ns": inpaint_ns,

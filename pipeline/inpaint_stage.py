@@ -47,7 +47,7 @@ class InpaintParams:
 
 def _weights_fingerprint(method: str) -> str:
     """Hash of the shipped network weights (the paper's method): new weights invalidate its caches."""
-    if method != "paper":
+    if method not in ("paper", "paper-greedy"):
         return ""
     weights = Path(__file__).resolve().parent.parent / "inpaint" / "weights"
     digest = hashlib.blake2b(digest_size=8)
