@@ -34,6 +34,7 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 WEIGHTS_FILE = WEIGHTS_DIR / "fusion_net.pt"
 META_FILE = WEIGHTS_DIR / "fusion_net.json"
 SIGMA_MIN = 0.05  # metres: smallest normalisation scale of a block
+RUN_CHUNK = 384  # blocks per forward call inside ``run_net``
 
 
 class DenseBlock(nn.Module):
@@ -126,10 +127,17 @@ def run_net(net: FusionNet, cands: np.ndarray, target: np.ndarray, hole: np.ndar
     """Apply the network to normalised numpy blocks (shapes as ``FusionNet.forward``); returns B×b×b float32."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: one thread is faster than two (and deterministic), restored below
+    c_t, t_t = torch.from_numpy(np.ascontiguousarray(cands)), torch.from_numpy(np.ascontiguousarray(target))
+    h_t = torch.from_numpy(hole.astype(np.float32))
+    q_t, v_t = torch.from_numpy(q.astype(np.float32)), torch.from_numpy(np.ascontiguousarray(valid))
+    out = np.empty(target.shape, np.float32)
     try:
-        with torch.no_grad():
-            out = net(torch.from_numpy(cands), torch.from_numpy(target), torch.from_numpy(hole.astype(np.float32)),
-                      torch.from_numpy(q.astype(np.float32)), torch.from_numpy(valid))
+        with torch.inference_mode():
+            # Fixed-size chunks: the convolutions on many tiny maps are memory-bound, and a chunk of RUN_CHUNK
+            # blocks is 2-3× faster per block than one huge batch (measured); the result does not depend on it.
+            for i in range(0, len(target), RUN_CHUNK):
+                sl = slice(i, i + RUN_CHUNK)
+                out[sl] = net(c_t[sl], t_t[sl], h_t[sl], q_t[sl], v_t[sl]).numpy()
     finally:
         torch.set_num_threads(threads)
-    return out.numpy().astype(np.float32)
+    return out
