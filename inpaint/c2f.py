@@ -21,8 +21,9 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
      gradient-structure MSD + ``w_depth`` × mean-removed depth MSD, target pixels weighted 1 (known) or
      ``w_estimate`` (estimated);
    - candidates: the best block at this level and, for each coarser level, the best block that level's field holds
-     at the same place (sampled at that level and upsampled bilinearly), each shifted to the current estimate's
-     block mean; quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
+     at the same place (sampled at that level and upsampled bilinearly), each shifted to the block mean of the
+     measured pixels (estimated ones weigh ``w_anchor``, so a block without measured pixels keeps the estimate's
+     mean); quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
      the levels that found any block (fall-back), else the current estimate;
    - fusion of the candidates (``fusion``): the PLIP-softmax network (one batched call per pass; its own weights,
      trained on the candidates of this formulation, ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the
@@ -65,12 +66,14 @@ class C2FOptions:
     - levels [3]: L_max (1/1 … 1/2^L_max; fewer when the image is small); single_scale [False]: ablation, every
       fusion uses only the block of its own level (and the coarsest fill searches one level).
     - block [11]: level-0 block (odd); coarser levels use ``max(7, block/2^L + 3)`` rounded to odd.
-    - overlap [2]: overlap of neighbouring blocks (pixels); passes [(1, 2, 2)]: refinement passes at levels 0, 1, 2…
+    - overlap [2]: overlap of neighbouring blocks (pixels); passes [(1, 1, 1)]: refinement passes at levels 0, 1, 2…
       (last value repeats); iters [2]: PatchMatch scans per pass; search [(4, 8, 16, 16)]: random-search radius
       per level (level pixels, last repeats).
     - gradient ["anisotropic"|"sobel"]; fusion ["net"|"mean"|"best"]; w_depth [1.0]; match_threshold [1.0];
-      alpha [4.0]; w_estimate [0.5]: similarity weight of estimated (not measured) target pixels.
-    - coarse_block [7], coarse_levels [2], coarse_radius [(6, 5, 4)]: the greedy fill of the coarsest level.
+      alpha [4.0]; w_estimate [0.5]: similarity weight of estimated (not measured) target pixels; w_anchor [0.01]:
+      their weight in the mean that candidates are shifted to (measured pixels weigh 1).
+    - coarse_block [7], coarse_levels [2], coarse_radius [(6, 5, 4)], coarse_max_blocks [64]: the greedy fill of
+      the coarsest level (``paper-greedy``'s block, levels, radius and blocks per round there).
     - domain ["inverse"|"depth"]; weights [None]: fusion weights of the fine levels (None = shipped
       ``fusion_net_c2f.pt``); coarse_weights [None]: those of the greedy coarsest fill (None = ``fusion_net.pt``).
     - seed [0]: seed of the random search (the output is deterministic for a given seed).
@@ -80,7 +83,7 @@ class C2FOptions:
     single_scale: bool = False
     block: int = 11
     overlap: int = 2
-    passes: tuple[int, ...] = (1, 2, 2)
+    passes: tuple[int, ...] = (1, 1, 1)
     iters: int = 2
     search: tuple[int, ...] = (4, 8, 16, 16)
     gradient: str = "anisotropic"
@@ -89,9 +92,11 @@ class C2FOptions:
     match_threshold: float = 1.0
     alpha: float = 4.0
     w_estimate: float = 0.5
+    w_anchor: float = 0.01
     coarse_block: int = 7
     coarse_levels: int = 2
     coarse_radius: tuple[int, ...] = (6, 5, 4)
+    coarse_max_blocks: int = 64
     domain: str = "inverse"
     weights: str | None = None
     coarse_weights: str | None = None
@@ -245,7 +250,7 @@ class _CoarseToFine:
                                  block=min(o.coarse_block, (min(kt.shape) - 1) // 2 * 2 + 1),
                                  radius=o.coarse_radius, gradient=o.gradient,
                                  fusion=o.fusion, w_depth=o.w_depth, match_threshold=o.match_threshold,
-                                 alpha=o.alpha, weights=o.coarse_weights)
+                                 alpha=o.alpha, weights=o.coarse_weights, max_blocks=o.coarse_max_blocks)
             est = _Filler(np.where(kt, self.d[top], 0).astype(np.float32), ~kt, popts, None).run()
         np.clip(est, *self.value_range, out=est)
         self.est[top] = est
@@ -294,7 +299,7 @@ class _CoarseToFine:
             ok[ok] = cf.best[j[ok], 0] >= 0
             jj = j[ok]
             init[ok, 1] = centres[ok] + 2 * (cf.best[jj] - cf.centres[jj])
-        if src.any():
+        if src.any() and (lv == self.n_lv - 1 or (init[:, 1, 0] < 0).any()):  # finer levels: coarse init suffices
             _, (iy, ix) = _nearest(src)
             init[:, 2, 0] = iy[centres[:, 0], centres[:, 1]]
             init[:, 2, 1] = ix[centres[:, 0], centres[:, 1]]
@@ -311,7 +316,7 @@ class _CoarseToFine:
         # candidates: this level's block, then each coarser level's (upsampled)
         scales = [lv] if o.single_scale else list(range(lv, self.n_lv))
         s_n = len(scales)
-        cands = np.zeros((k_n, s_n, b, b), np.float32)
+        cands = np.zeros((s_n, k_n, b, b), np.float32)  # scale-major while sampling (contiguous), K×S×b×b below
         q = np.full((k_n, s_n), -Q_CLIP, np.float32)
         found = np.zeros((k_n, s_n), bool)
         for si, lc in enumerate(scales):
@@ -326,9 +331,10 @@ class _CoarseToFine:
             off = np.full((k_n, 2), np.nan)
             jj = j[ok]
             off[ok] = f.best[jj] - f.centres[jj]
-            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[:, si])
+            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[si])
             found[:, si] = ok
             q[ok, si] = -np.minimum(f.e[jj], Q_CLIP)
+        cands = np.ascontiguousarray(cands.transpose(1, 0, 2, 3))
         valid = found & (q > -o.match_threshold)
         none = ~valid.any(axis=1)
         valid[none] = found[none]  # 1_match fall-back: every level that found a block
@@ -337,7 +343,8 @@ class _CoarseToFine:
         bx = centres[:, 1, None, None] + off[None, None, :]
         by, bx = np.broadcast_arrays(by, bx)
         est_blk = est[by, bx]
-        w_blk = wt[by, bx]
+        known_blk = known[by, bx]
+        w_blk = np.where(known_blk, np.float32(1.0), np.float32(o.w_anchor))
         ws = w_blk.sum(axis=(1, 2))
         mu_t = (est_blk * w_blk).sum(axis=(1, 2)) / ws
         mu_c = (cands * w_blk[:, None]).sum(axis=(2, 3)) / ws[:, None]
@@ -347,7 +354,6 @@ class _CoarseToFine:
             cands[still, 0] = est_blk[still]
             valid[still, 0] = True
             q[still, 0] = 0.0
-        known_blk = known[by, bx]
         if self.observer is not None:
             self.observer(lv, centres, cands, est_blk, known_blk, q, valid)
         fill = _fuse(o, cands, est_blk, known_blk, q, valid)
