@@ -39,7 +39,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -76,7 +75,8 @@ class C2FOptions:
       the coarsest level (``paper-greedy``'s block, levels, radius and blocks per round there).
     - domain ["inverse"|"depth"]; weights [None]: fusion weights of the fine levels (None = shipped
       ``fusion_net_c2f.pt``); coarse_weights [None]: those of the greedy coarsest fill (None = ``fusion_net.pt``).
-    - seed [0]: seed of the random search (the output is deterministic for a given seed).
+    - seed [0]: seed of the random search (the output is deterministic for a given seed); clamp_fusion [True]: the
+      network's fused value of a pixel is kept within the range of the valid candidates there.
     """
 
     levels: int = 3
@@ -101,6 +101,7 @@ class C2FOptions:
     weights: str | None = None
     coarse_weights: str | None = None
     seed: int = 0
+    clamp_fusion: bool = True
 
     @classmethod
     def from_kwargs(cls, **options: object) -> C2FOptions:
@@ -233,9 +234,8 @@ class _CoarseToFine:
         self.est: list[np.ndarray | None] = [None] * self.n_lv
 
     def _h(self, lv: int) -> int:
-        if lv == 0:
-            return self.o.block // 2
-        return _odd(max(7.0, self.o.block / 2 ** lv + 3)) // 2
+        h = self.o.block // 2 if lv == 0 else _odd(max(7.0, self.o.block / 2 ** lv + 3)) // 2
+        return min(h, (min(self.d[lv].shape) - 1) // 2)
 
     def run(self) -> np.ndarray:
         o = self.o
@@ -387,11 +387,14 @@ def _fuse(o: C2FOptions, cands: np.ndarray, est_blk: np.ndarray, known_blk: np.n
     net = load_net(o.weights or str(C2F_WEIGHTS_FILE))
     cn, tn, mu, sigma = normalise(cands, est_blk, np.ones(est_blk.shape, bool), valid)
     out = run_net(net, cn, tn, ~known_blk, q, valid)
-    return (out * sigma[:, None, None] + mu[:, None, None]).astype(np.float32)
+    out = out * sigma[:, None, None] + mu[:, None, None]
+    if o.clamp_fusion:  # a fusion of the candidates stays within their per-pixel range
+        vm = valid[:, :, None, None]
+        lo = np.where(vm, cands, np.inf).min(axis=1)
+        hi = np.where(vm, cands, -np.inf).max(axis=1)
+        out = np.minimum(np.maximum(out, lo), hi)
+    return out.astype(np.float32)
 
-
-def c2f_weights_path() -> Path:
-    return C2F_WEIGHTS_FILE
 
 
 __all__ = ["C2FOptions", "inpaint_paper_c2f"]

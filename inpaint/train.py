@@ -54,6 +54,7 @@ class TrainConfig:
     threads: int = 1
     formulation: str = "greedy"  # whose candidates: "greedy" (paper-greedy) or "c2f" (paper, coarse-to-fine)
     c2f_levels: tuple[int, ...] = (0, 1)  # levels of the c2f passes whose blocks are recorded
+    clamp: bool = False  # train through the per-pixel candidate-range clamp (the c2f method applies it)
 
 
 @dataclass
@@ -231,6 +232,16 @@ def _tensors(ex: Examples, idx: np.ndarray) -> tuple[torch.Tensor, ...]:
             torch.from_numpy(gtn.astype(np.float32)), torch.from_numpy(w.astype(np.float32)))
 
 
+def _clamped(pred: torch.Tensor, cands: torch.Tensor, valid: torch.Tensor, on: bool) -> torch.Tensor:
+    """The prediction kept within the per-pixel range of the valid candidates (``C2FOptions.clamp_fusion``)."""
+    if not on:
+        return pred
+    vm = valid[:, :, None, None]
+    lo = torch.where(vm, cands, torch.full_like(cands, float("inf"))).amin(dim=1)
+    hi = torch.where(vm, cands, torch.full_like(cands, float("-inf"))).amax(dim=1)
+    return torch.minimum(torch.maximum(pred, lo), hi)
+
+
 def _loss(pred: torch.Tensor, gt: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     per = torch.nn.functional.smooth_l1_loss(pred, gt, reduction="none", beta=0.1)
     return (per * w).sum() / w.sum().clamp(min=1.0)
@@ -265,7 +276,7 @@ def train_fusion(ex: Examples, cfg: TrainConfig, progress: Callable[[int, int, f
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
             cn, tn, hole, q, valid, gtn, w = _tensors(ex, np.sort(perm[i:i + cfg.batch]))
-            loss = _loss(net(cn, tn, hole, q, valid), gtn, w)
+            loss = _loss(_clamped(net(cn, tn, hole, q, valid), cn, valid, cfg.clamp), gtn, w)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -274,7 +285,7 @@ def train_fusion(ex: Examples, cfg: TrainConfig, progress: Callable[[int, int, f
         sched.step()
         net.eval()
         with torch.no_grad():
-            vl = float(_loss(net(*val[:5]), val[5], val[6]))
+            vl = float(_loss(_clamped(net(*val[:5]), val[0], val[4], cfg.clamp), val[5], val[6]))
         train_loss = tot / max(cnt, 1)
         history.append({"epoch": epoch + 1, "train_loss": train_loss, "val_loss": vl,
                         "elapsed_s": time.perf_counter() - t0})

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     c2f = args.formulation == "c2f"
     cfg = TrainConfig(seed=args.seed, masks_per_frame=args.masks_per_frame, epochs=args.epochs,
                       max_seconds=args.max_minutes * 60.0, max_examples=args.max_examples,
-                      formulation=args.formulation, net=dict(C2F_NET) if c2f else {})
+                      formulation=args.formulation, net=dict(C2F_NET) if c2f else {}, clamp=c2f)
     bar = tqdm(total=len(frames) * cfg.masks_per_frame, desc="collect blocks", disable=args.quiet)
     ex = collect_examples(frames, cfg, progress=lambda d, n: bar.update(d - bar.n))
     bar.close()
