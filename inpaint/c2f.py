@@ -78,7 +78,8 @@ class C2FOptions:
     - domain ["inverse"|"depth"]; weights [None]: fusion weights of the fine levels (None = shipped
       ``fusion_net_c2f.pt``); coarse_weights [None]: those of the greedy coarsest fill (None = ``fusion_net.pt``).
     - seed [0]: seed of the random search (the output is deterministic for a given seed); clamp_fusion [True]: the
-      network's fused value of a pixel is kept within the range of the valid candidates there.
+      network's fused value of a pixel is kept within the range of the valid candidates there; scales [4]: candidate
+      levels per pass (this level and the next coarser ones; fewer is faster and measured worse).
     """
 
     levels: int = 3
@@ -105,6 +106,7 @@ class C2FOptions:
     coarse_weights: str | None = None
     seed: int = 0
     clamp_fusion: bool = True
+    scales: int = 4
 
     @classmethod
     def from_kwargs(cls, **options: object) -> C2FOptions:
@@ -317,7 +319,7 @@ class _CoarseToFine:
         if not fuse_paste:
             return est
         # candidates: this level's block, then each coarser level's (upsampled)
-        scales = [lv] if o.single_scale else list(range(lv, self.n_lv))
+        scales = [lv] if o.single_scale else list(range(lv, min(self.n_lv, lv + o.scales)))
         s_n = len(scales)
         cands = np.zeros((s_n, k_n, b, b), np.float32)  # scale-major while sampling (contiguous), K×S×b×b below
         q = np.full((k_n, s_n), -Q_CLIP, np.float32)
