@@ -15,7 +15,10 @@ PLIP must lie below γ). Fusion: F_fused = γ − γ·Π_L (1 − F^(L)/γ)^{w^(
 residual added to the softmax-weighted mean of the candidates. Output: B×b×b normalised depth (only hole pixels
 are used).
 
-About 5 k parameters (≈ 25 kB of float32 weights): small enough to run on every block of a frame on a CPU.
+About 5 k parameters (≈ 25 kB of float32 weights) with the default sizes (``paper-greedy``'s weights); the
+coarse-to-fine method (``paper``) runs it on every hole block of every level and ships a narrower one (features 4,
+one dense layer, 8 hidden channels: ≈ 1.5 k parameters, ``weights/fusion_net_c2f.*``). The sizes are read from the
+JSON record beside the weights.
 """
 
 from __future__ import annotations

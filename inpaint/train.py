@@ -7,6 +7,11 @@ quality and the ground truth of the block. The network learns to reconstruct the
 inputs. Loss: smooth-L1 on hidden pixels with valid ground truth, in the per-block normalised units of
 ``fusion_net.normalise``. CPU, seeded (numpy and torch), deterministic for a fixed thread count.
 
+``TrainConfig.formulation`` chooses whose blocks are recorded: ``"greedy"`` (``paper-greedy``, as above) or ``"c2f"``
+(``paper``: the blocks of its refinement passes at levels ``c2f_levels``, recorded while fusing with the best block;
+there the target channel is the current estimate on every pixel and ``known`` marks the measured pixels, and the
+ground truth of a level is the masked pyramid of the exact depth).
+
 The library returns the trained weights as bytes and the record as a dict; ``pipeline`` writes the files.
 """
 
