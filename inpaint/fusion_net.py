@@ -139,8 +139,10 @@ def run_net(net: FusionNet, cands: np.ndarray, target: np.ndarray, hole: np.ndar
     q_t, v_t = torch.from_numpy(q.astype(np.float32)), torch.from_numpy(np.ascontiguousarray(valid))
     out = np.empty(target.shape, np.float32)
     step = chunk or RUN_CHUNK
+    mkldnn = torch.backends.mkldnn.enabled
     try:
-        with torch.inference_mode(), torch.backends.mkldnn.flags(enabled=not native_conv):
+        torch.backends.mkldnn.enabled = mkldnn and not native_conv  # restored below
+        with torch.inference_mode():
             # Fixed-size chunks: the convolutions on many tiny maps are memory-bound, and a chunk of RUN_CHUNK
             # blocks is 2-3× faster per block than one huge batch (measured); the result does not depend on it.
             for i in range(0, len(target), step):
@@ -148,4 +150,5 @@ def run_net(net: FusionNet, cands: np.ndarray, target: np.ndarray, hole: np.ndar
                 out[sl] = net(c_t[sl], t_t[sl], h_t[sl], q_t[sl], v_t[sl]).numpy()
     finally:
         torch.set_num_threads(threads)
+        torch.backends.mkldnn.enabled = mkldnn
     return out
