@@ -15,7 +15,10 @@ PLIP must lie below γ). Fusion: F_fused = γ − γ·Π_L (1 − F^(L)/γ)^{w^(
 residual added to the softmax-weighted mean of the candidates. Output: B×b×b normalised depth (only hole pixels
 are used).
 
-About 5 k parameters (≈ 25 kB of float32 weights): small enough to run on every block of a frame on a CPU.
+About 5 k parameters (≈ 25 kB of float32 weights) with the default sizes (``paper-greedy``'s weights); the
+coarse-to-fine method (``paper``) runs it on every hole block of every level and ships a narrower one (features 4,
+one dense layer, 8 hidden channels: ≈ 1.5 k parameters, ``weights/fusion_net_c2f.*``). The sizes are read from the
+JSON record beside the weights.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 WEIGHTS_FILE = WEIGHTS_DIR / "fusion_net.pt"
 META_FILE = WEIGHTS_DIR / "fusion_net.json"
 SIGMA_MIN = 0.05  # metres: smallest normalisation scale of a block
+RUN_CHUNK = 384  # blocks per forward call inside ``run_net``
 
 
 class DenseBlock(nn.Module):
@@ -122,14 +126,29 @@ def load_net(path: str | None = None) -> FusionNet:
 
 
 def run_net(net: FusionNet, cands: np.ndarray, target: np.ndarray, hole: np.ndarray, q: np.ndarray,
-            valid: np.ndarray) -> np.ndarray:
-    """Apply the network to normalised numpy blocks (shapes as ``FusionNet.forward``); returns B×b×b float32."""
+            valid: np.ndarray, native_conv: bool = False, chunk: int | None = None) -> np.ndarray:
+    """Apply the network to normalised numpy blocks (shapes as ``FusionNet.forward``); returns B×b×b float32.
+
+    ``native_conv``: run the convolutions with torch's native CPU kernels instead of oneDNN (mkldnn), which are
+    ≈ 2× faster for the narrow c2f network on 11×11 maps (measured; results equal to ~1e-5), in chunks of ``chunk``
+    blocks (default ``RUN_CHUNK``)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: one thread is faster than two (and deterministic), restored below
+    c_t, t_t = torch.from_numpy(np.ascontiguousarray(cands)), torch.from_numpy(np.ascontiguousarray(target))
+    h_t = torch.from_numpy(hole.astype(np.float32))
+    q_t, v_t = torch.from_numpy(q.astype(np.float32)), torch.from_numpy(np.ascontiguousarray(valid))
+    out = np.empty(target.shape, np.float32)
+    step = chunk or RUN_CHUNK
+    mkldnn = torch.backends.mkldnn.enabled
     try:
-        with torch.no_grad():
-            out = net(torch.from_numpy(cands), torch.from_numpy(target), torch.from_numpy(hole.astype(np.float32)),
-                      torch.from_numpy(q.astype(np.float32)), torch.from_numpy(valid))
+        torch.backends.mkldnn.enabled = mkldnn and not native_conv  # restored below
+        with torch.inference_mode():
+            # Fixed-size chunks: the convolutions on many tiny maps are memory-bound, and a chunk of RUN_CHUNK
+            # blocks is 2-3× faster per block than one huge batch (measured); the result does not depend on it.
+            for i in range(0, len(target), step):
+                sl = slice(i, i + step)
+                out[sl] = net(c_t[sl], t_t[sl], h_t[sl], q_t[sl], v_t[sl]).numpy()
     finally:
         torch.set_num_threads(threads)
-    return out.numpy().astype(np.float32)
+        torch.backends.mkldnn.enabled = mkldnn
+    return out

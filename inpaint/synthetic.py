@@ -126,3 +126,82 @@ def _guide(label: np.ndarray, shade: np.ndarray, depth: np.ndarray, rng: np.rand
     g[label == 2] = (0.25 + 0.35 * np.clip(shade, 0, 1) + 0.05 * noise)[label == 2]
     g[label == 3] = 0.2 + 0.1 * noise[label == 3]
     return np.clip(g, 0, 1).astype(np.float32)
+
+
+def object_depth(height: int = 376, width: int = 672, seed: int = 0, sky_depth: float = 60.0) -> SyntheticFrame:
+    """A non-field scene with exact depth: ground plane, a tilted back wall (or sky above a low wall), boxes at
+    several distances (occluding one another), thin vertical poles and floating tilted plates. Deterministic in
+    ``seed``. Same conventions as :func:`field_depth` (optical frame, metres, float32; sky invalid)."""
+    rng = np.random.default_rng(seed)
+    s = width / 672.0
+    fx = fy = 351.0 * s
+    cx, cy = width / 2.0, height / 2.0
+    pitch = np.deg2rad(rng.uniform(0.0, 20.0))
+    cam_h = rng.uniform(0.5, 1.8)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    r_cw = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays_c = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], axis=-1)
+    d = rays_c @ r_cw  # world directions (x right, y down, z forward), camera at (0, −cam_h, 0) above y = 0
+    o = np.array([0.0, -cam_h, 0.0])
+    depth = np.full((height, width), np.inf)  # ray parameter t; camera z = t because rays_c has z = 1
+    label = np.zeros((height, width), np.int8)
+    shade = np.zeros((height, width))
+
+    def put(t: np.ndarray, lab: int, sh: np.ndarray | float) -> None:
+        win = np.isfinite(t) & (t > 0.05) & (t < depth)
+        depth[win] = t[win]
+        label[win] = lab
+        shade[win] = (np.broadcast_to(sh, t.shape))[win]
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        put(np.where(d[..., 1] > 1e-6, cam_h / d[..., 1], np.inf), 1, 0.4)  # ground y = 0
+        far = rng.uniform(8.0, 30.0)
+        tilt = rng.uniform(-0.4, 0.4)  # wall z = far + tilt·x
+        denom = d[..., 2] - tilt * d[..., 0]
+        tw = np.where(denom > 1e-6, far / denom, np.inf)
+        wall_top = rng.uniform(1.0, 6.0) if rng.random() < 0.6 else 1e9
+        yw = o[1] + tw * d[..., 1]
+        put(np.where(yw > -wall_top, tw, np.inf), 2, 0.3)
+        for _ in range(int(rng.integers(3, 9))):  # boxes (slab method)
+            z0 = rng.uniform(1.2, min(far - 1.0, 14.0))
+            size = rng.uniform(0.2, 1.8, 3)
+            x0 = rng.uniform(-0.6, 0.6) * z0
+            lo = np.array([x0 - size[0] / 2, -size[1], z0])
+            hi = np.array([x0 + size[0] / 2, 0.0, z0 + size[2]])
+            if rng.random() < 0.3:  # floating
+                lift = rng.uniform(0.2, 1.0)
+                lo[1] -= lift
+                hi[1] -= lift
+            t1 = (lo - o) / d
+            t2 = (hi - o) / d
+            tn = np.nanmax(np.minimum(t1, t2), axis=-1)
+            tf = np.nanmin(np.maximum(t1, t2), axis=-1)
+            put(np.where((tf >= tn) & (tn > 0), tn, np.inf), 3, rng.uniform(0.2, 0.8))
+        for _ in range(int(rng.integers(0, 6))):  # thin vertical poles (cylinders)
+            pc = np.array([rng.uniform(-4, 4), rng.uniform(1.5, 12.0)])
+            rad = rng.uniform(0.015, 0.08)
+            top = rng.uniform(0.5, 3.0)
+            ox, oz = o[0] - pc[0], o[2] - pc[1]
+            a = d[..., 0] ** 2 + d[..., 2] ** 2
+            b = 2 * (ox * d[..., 0] + oz * d[..., 2])
+            c = ox * ox + oz * oz - rad * rad
+            disc = b * b - 4 * a * c
+            tp = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
+            yp = o[1] + tp * d[..., 1]
+            put(np.where((disc > 0) & (yp < 0) & (yp > -top), tp, np.inf), 4, 0.6)
+        for _ in range(int(rng.integers(0, 4))):  # tilted plates: a plane patch n·(p − c) = 0 within a radius
+            c0 = np.array([rng.uniform(-3, 3), -rng.uniform(0.3, 2.0), rng.uniform(2.0, 10.0)])
+            n = rng.normal(size=3)
+            n[2] = -abs(n[2]) - 0.5
+            n /= np.linalg.norm(n)
+            rad = rng.uniform(0.3, 1.2)
+            den = d @ n
+            tp = ((c0 - o) @ n) / den
+            p = o + tp[..., None] * d
+            put(np.where(np.linalg.norm(p - c0, axis=-1) < rad, tp, np.inf), 5, 0.7)
+    valid = np.isfinite(depth) & (depth < sky_depth)
+    depth = np.where(valid, depth, sky_depth).astype(np.float32)
+    noise = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 1.2)
+    guide = np.clip(np.where(label == 0, 0.9, shade + 0.05 * noise), 0, 1).astype(np.float32)
+    return SyntheticFrame(depth=depth, guide=guide, valid=valid)

@@ -7,6 +7,11 @@ quality and the ground truth of the block. The network learns to reconstruct the
 inputs. Loss: smooth-L1 on hidden pixels with valid ground truth, in the per-block normalised units of
 ``fusion_net.normalise``. CPU, seeded (numpy and torch), deterministic for a fixed thread count.
 
+``TrainConfig.formulation`` chooses whose blocks are recorded: ``"greedy"`` (``paper-greedy``, as above) or ``"c2f"``
+(``paper``: the blocks of its refinement passes at levels ``c2f_levels``, recorded while fusing with the best block;
+there the target channel is the current estimate on every pixel and ``known`` marks the measured pixels, and the
+ground truth of a level is the masked pyramid of the exact depth).
+
 The library returns the trained weights as bytes and the record as a dict; ``pipeline`` writes the files.
 """
 
@@ -52,6 +57,9 @@ class TrainConfig:
     method_options: dict = field(default_factory=dict)
     net: dict = field(default_factory=dict)
     threads: int = 1
+    formulation: str = "greedy"  # whose candidates: "greedy" (paper-greedy) or "c2f" (paper, coarse-to-fine)
+    c2f_levels: tuple[int, ...] = (0, 1)  # levels of the c2f passes whose blocks are recorded
+    clamp: bool = False  # train through the per-pixel candidate-range clamp (the c2f method applies it)
 
 
 @dataclass
@@ -66,6 +74,7 @@ class Examples:
     valid: np.ndarray
     gt: np.ndarray
     gt_valid: np.ndarray
+    target_all: bool = False  # c2f: ``target`` is the current estimate on every pixel, ``known`` the measured ones
 
     def __len__(self) -> int:
         return len(self.gt)
@@ -88,6 +97,8 @@ def training_mask(frame: TrainingFrame, rng: np.random.Generator, cfg: TrainConf
 def collect_examples(frames: Sequence[TrainingFrame], cfg: TrainConfig,
                      progress: Callable[[int, int], None] | None = None) -> Examples:
     """Run the paper's fill (``fusion="mean"``) on masked frames and record every fused block with its ground truth."""
+    if cfg.formulation == "c2f":
+        return _collect_c2f(frames, cfg, progress)
     rng = np.random.default_rng(cfg.seed)
     rec: dict[str, list[np.ndarray]] = {k: [] for k in ("cands", "target", "known", "q", "valid", "gt", "gt_valid")}
     opts = dict(cfg.method_options)
@@ -128,6 +139,81 @@ def collect_examples(frames: Sequence[TrainingFrame], cfg: TrainConfig,
     return ex
 
 
+def _collect_c2f(frames: Sequence[TrainingFrame], cfg: TrainConfig,
+                 progress: Callable[[int, int], None] | None) -> Examples:
+    """Blocks of the coarse-to-fine method's refinement passes (levels ``cfg.c2f_levels``), fused there with
+    ``fusion="best"`` while recording; ground truth of a level = the masked pyramid of the exact depth."""
+    from inpaint.c2f import inpaint_paper_c2f
+    from inpaint.pyramid import masked_pyrdown
+
+    rng = np.random.default_rng(cfg.seed)
+    keys = ("cands", "target", "known", "q", "valid", "gt", "gt_valid")
+    rec: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    opts = dict(cfg.method_options)
+    opts.setdefault("fusion", "best")
+    domain = opts.get("domain", "inverse")
+    total = len(frames) * cfg.masks_per_frame
+    done = 0
+    for frame in frames:
+        ok0 = frame.valid & np.isfinite(frame.depth)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g0 = np.where(ok0, INVERSE_REF_M / np.maximum(frame.depth, 1e-6) if domain == "inverse" else frame.depth,
+                          0.0).astype(np.float32)
+        gts, oks = [g0], [ok0]
+        wgt = ok0.astype(np.float32)
+        for _ in range(max(cfg.c2f_levels)):
+            g, wgt = masked_pyrdown(gts[-1], wgt)
+            gts.append(g)
+            oks.append(wgt > 0.99)
+        for _ in range(cfg.masks_per_frame):
+            mask = training_mask(frame, rng, cfg)
+            if mask.all() or not mask.any():
+                continue
+
+            def observer(lv: int, centres: np.ndarray, cands: np.ndarray, target: np.ndarray, known: np.ndarray,
+                         q: np.ndarray, valid: np.ndarray) -> None:
+                if lv not in cfg.c2f_levels:
+                    return
+                hb = target.shape[1] // 2
+                off = np.arange(-hb, hb + 1)
+                ys, xs = np.broadcast_arrays(centres[:, 0, None, None] + off[None, :, None],
+                                             centres[:, 1, None, None] + off[None, None, :])
+                gt_blk, ok_blk = gts[lv][ys, xs], oks[lv][ys, xs]
+                use = (ok_blk & ~known).any(axis=(1, 2))
+                for k, v in (("cands", cands), ("target", target), ("known", known), ("q", q), ("valid", valid),
+                             ("gt", gt_blk), ("gt_valid", ok_blk)):
+                    rec[k].append(np.array(v[use]))
+
+            depth = np.where(mask | ~np.isfinite(frame.depth), np.nan, frame.depth).astype(np.float32)
+            inpaint_paper_c2f(depth, mask | ~np.isfinite(frame.depth), observer=observer, **opts)
+            done += 1
+            if progress is not None:
+                progress(done, total)
+    # levels differ in block size and scale count: pad every record to the largest (edge-replicated values,
+    # padded pixels known and without ground truth; missing scales invalid), which the network ignores
+    b0 = max(a.shape[-1] for a in rec["target"])
+    s0 = max(a.shape[1] for a in rec["cands"])
+    for i in range(len(rec["target"])):
+        p = (b0 - rec["target"][i].shape[-1]) // 2
+        ds = s0 - rec["cands"][i].shape[1]
+        if p == 0 and ds == 0:
+            continue
+        sp = ((0, 0), (p, p), (p, p))
+        rec["cands"][i] = np.pad(np.pad(rec["cands"][i], ((0, 0), (0, 0), (p, p), (p, p)), mode="edge"),
+                                 ((0, 0), (0, ds), (0, 0), (0, 0)))
+        rec["q"][i] = np.pad(rec["q"][i], ((0, 0), (0, ds)), constant_values=-10.0)
+        rec["valid"][i] = np.pad(rec["valid"][i], ((0, 0), (0, ds)), constant_values=False)
+        rec["target"][i] = np.pad(rec["target"][i], sp, mode="edge")
+        rec["gt"][i] = np.pad(rec["gt"][i], sp, mode="edge")
+        rec["known"][i] = np.pad(rec["known"][i], sp, constant_values=True)
+        rec["gt_valid"][i] = np.pad(rec["gt_valid"][i], sp, constant_values=False)
+    ex = Examples(**{k: np.concatenate(v) for k, v in rec.items()}, target_all=True)
+    if len(ex) > cfg.max_examples:
+        keep = np.sort(rng.choice(len(ex), cfg.max_examples, replace=False))
+        ex = Examples(**{k: getattr(ex, k)[keep] for k in keys}, target_all=True)
+    return ex
+
+
 @dataclass
 class TrainResult:
     """Trained weights and the record that ships beside them (JSON-serialisable ``meta``)."""
@@ -142,12 +228,23 @@ class TrainResult:
 
 
 def _tensors(ex: Examples, idx: np.ndarray) -> tuple[torch.Tensor, ...]:
-    cn, tn, mu, sigma = normalise(ex.cands[idx], ex.target[idx], ex.known[idx], ex.valid[idx])
+    trusted = np.ones(ex.known[idx].shape, bool) if ex.target_all else ex.known[idx]
+    cn, tn, mu, sigma = normalise(ex.cands[idx], ex.target[idx], trusted, ex.valid[idx])
     w = (~ex.known[idx]) & ex.gt_valid[idx] & np.isfinite(ex.gt[idx])
     gtn = np.where(w, (ex.gt[idx] - mu[:, None, None]) / sigma[:, None, None], 0.0)
     return (torch.from_numpy(cn), torch.from_numpy(tn), torch.from_numpy((~ex.known[idx]).astype(np.float32)),
             torch.from_numpy(ex.q[idx].astype(np.float32)), torch.from_numpy(ex.valid[idx]),
             torch.from_numpy(gtn.astype(np.float32)), torch.from_numpy(w.astype(np.float32)))
+
+
+def _clamped(pred: torch.Tensor, cands: torch.Tensor, valid: torch.Tensor, on: bool) -> torch.Tensor:
+    """The prediction kept within the per-pixel range of the valid candidates (``C2FOptions.clamp_fusion``)."""
+    if not on:
+        return pred
+    vm = valid[:, :, None, None]
+    lo = torch.where(vm, cands, torch.full_like(cands, float("inf"))).amin(dim=1)
+    hi = torch.where(vm, cands, torch.full_like(cands, float("-inf"))).amax(dim=1)
+    return torch.minimum(torch.maximum(pred, lo), hi)
 
 
 def _loss(pred: torch.Tensor, gt: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -184,7 +281,7 @@ def train_fusion(ex: Examples, cfg: TrainConfig, progress: Callable[[int, int, f
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
             cn, tn, hole, q, valid, gtn, w = _tensors(ex, np.sort(perm[i:i + cfg.batch]))
-            loss = _loss(net(cn, tn, hole, q, valid), gtn, w)
+            loss = _loss(_clamped(net(cn, tn, hole, q, valid), cn, valid, cfg.clamp), gtn, w)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -193,7 +290,7 @@ def train_fusion(ex: Examples, cfg: TrainConfig, progress: Callable[[int, int, f
         sched.step()
         net.eval()
         with torch.no_grad():
-            vl = float(_loss(net(*val[:5]), val[5], val[6]))
+            vl = float(_loss(_clamped(net(*val[:5]), val[0], val[4], cfg.clamp), val[5], val[6]))
         train_loss = tot / max(cnt, 1)
         history.append({"epoch": epoch + 1, "train_loss": train_loss, "val_loss": vl,
                         "elapsed_s": time.perf_counter() - t0})

@@ -27,7 +27,7 @@ import numpy as np
 from eval.depth_metrics import DEFAULT_PEAK_M, DepthMetrics, depth_metrics
 from inpaint import METHODS, inpaint
 
-DEFAULT_METHODS = ("paper", "ebm", "telea", "ns", "biharmonic", "ipbasic")
+DEFAULT_METHODS = ("paper", "paper-greedy", "ebm", "telea", "ns", "biharmonic", "ipbasic")
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,9 @@ from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.process_pool import spawn_pool
 
-#: Bump when the stage changes its outputs (invalidates inpainted caches).
-INPAINT_STAGE_VERSION = 1
+#: Bump when the stage changes its outputs (invalidates inpainted caches). 2: ``paper`` is the coarse-to-fine
+#: formulation (the greedy one is ``paper-greedy``).
+INPAINT_STAGE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ class InpaintParams:
 
 def _weights_fingerprint(method: str) -> str:
     """Hash of the shipped network weights (the paper's method): new weights invalidate its caches."""
-    if method != "paper":
+    if method not in ("paper", "paper-greedy"):
         return ""
     weights = Path(__file__).resolve().parent.parent / "inpaint" / "weights"
     digest = hashlib.blake2b(digest_size=8)

@@ -91,7 +91,8 @@ def test_paper_keeps_a_step_edge_sharp(options):
     assert wrong_side.mean() < 0.10  # the edge stays near its place
 
 
-@pytest.mark.parametrize("method,options", [("paper", {}), ("paper", {"fusion": "mean"}), ("ebm", {}),
+@pytest.mark.parametrize("method,options", [("paper", {}), ("paper", {"fusion": "mean"}), ("paper-greedy", {}),
+                                            ("ebm", {}),
                                             ("biharmonic", {}), ("ipbasic", {}), ("telea", {}), ("ns", {})])
 def test_deterministic_bit_identical(method, options):
     f = field_depth(H, W, seed=9)

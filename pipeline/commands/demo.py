@@ -2,14 +2,15 @@
 
 1. simulates three Rosario-like sequences (``rosario-like-01`` … ``-03``: camera tilt 19° / 12° / 7°, different
    speed, lighting and roughness), cached under the cache folder;
-2. computes stereo depth (StereoSGBM) and inpaints it (cached): by default with OpenCV Telea, see
-   ``DEFAULT_DEMO_INPAINT`` for why; ``--inpaint paper`` uses the paper's method;
+2. computes stereo depth (StereoSGBM) and inpaints it (cached): by default with the paper's method (``paper``, see
+   ``DEFAULT_DEMO_INPAINT``); ``--inpaint telea`` (or another method) compares another one;
 3. runs every variant (stereo, depth-raw, depth-inpainted, odometry) five times per sequence;
 4. benchmarks the inpainting methods, the paper's included, on simulated frames with exact depth (Table 1);
 5. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
 
-The default sizes finish in about 11 minutes on a 2-core machine (measured 10.3 min from a fresh clone, within the
-15-minute budget); ``--full`` simulates 60 s sequences.
+The default sizes finish in about 12 minutes on a 2-core machine (measured 12.2 min with the paper's method in the
+VIO loop, on a shared machine, install excluded; 10.3 min from a fresh clone with Telea before), within the 15-minute
+budget; ``--full`` simulates 60 s sequences.
 """
 
 from __future__ import annotations
@@ -26,12 +27,11 @@ from pipeline.paths import cache_dir
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
 PRESETS = ("rosario-like-01", "rosario-like-02", "rosario-like-03")
-#: The VIO comparison's inpainting method in the default demo. The paper's method costs ≈6 s per 672×376 frame
-#: with ~50 % SGBM holes on this 2-core CPU (measured; two frames in parallel take ≈9–10 s, so the 450 demo frames
-#: take ≈40 min on two cores), which cannot fit the demo's 15-minute budget, so the default demo fills depth with
-#: OpenCV Telea (≈0.1 s) for the VIO runs and measures the paper's method in the inpainting benchmark (Table 1).
-#: ``--inpaint paper`` (or ``--full``) runs the paper's method in the VIO comparison too.
-DEFAULT_DEMO_INPAINT = "telea"
+#: The VIO comparison's inpainting method in the default demo: the paper's method (``paper``, the coarse-to-fine
+#: formulation, a few tenths of a second per 672×376 frame with ~50 % SGBM holes on this 2-core CPU, so the 450 demo
+#: frames fit the 15-minute budget). Before it, the greedy formulation (now ``paper-greedy``, ≈ 6 s per frame) did
+#: not fit and the demo used OpenCV Telea; ``--inpaint telea`` (or any method name) still selects another method.
+DEFAULT_DEMO_INPAINT = "paper"
 DEFAULT_DURATION_S = 10.0
 FULL_DURATION_S = 60.0
 
@@ -41,15 +41,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=None, help="output folder (default: <cache>/demo)")
     p.add_argument("--full", action="store_true",
-                   help=f"{FULL_DURATION_S:g} s sequences and the paper's method in the VIO comparison (hours)")
+                   help=f"{FULL_DURATION_S:g} s sequences")
     p.add_argument("--duration", type=float, default=None,
                    help=f"simulated seconds per sequence (default {DEFAULT_DURATION_S:g}; --full: {FULL_DURATION_S:g})")
     p.add_argument("--runs", type=int, default=5, help="seeded runs per variant (default 5)")
     p.add_argument("--variants", default=",".join(DEFAULT_VARIANTS), help="comma-separated variants (default: all)")
     p.add_argument("--presets", default=",".join(PRESETS), help="comma-separated simulator presets")
     p.add_argument("--inpaint", default=DEFAULT_DEMO_INPAINT, metavar="METHOD",
-                   help=f"method of depth-inpainted (default {DEFAULT_DEMO_INPAINT}: see the module docstring; "
-                        "'paper' runs the paper's method, ≈6 s per frame here)")
+                   help=f"method of depth-inpainted (default {DEFAULT_DEMO_INPAINT}, the paper's method; e.g. 'telea', "
+                        "or 'paper-greedy', the original greedy formulation, ≈6 s per frame here)")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: all cores)")
     p.add_argument("--no-bench", action="store_true", help="skip the inpainting benchmark")
     p.add_argument("--no-replay", action="store_true", help="skip the rerun replay")
@@ -61,7 +61,7 @@ def _inpaint_bench(out: Path) -> Path | None:
     from pipeline.cli import main as cli_main
 
     bench_dir = out / "inpaint_bench"
-    code = cli_main(["inpaint-bench", "--small", "--methods", "paper,ebm,telea,ns,biharmonic,ipbasic",
+    code = cli_main(["inpaint-bench", "--small", "--methods", "paper,paper-greedy,ebm,telea,ns,biharmonic,ipbasic",
                      "--out", str(bench_dir), "--quiet"])
     if code != 0 or not (bench_dir / "results.md").is_file():
         print("inpainting benchmark failed; the report goes on without it")
@@ -76,8 +76,6 @@ def run(args: argparse.Namespace) -> int:
         raise AgrivioError("--runs must be at least 1")
     out: Path = args.out or cache_dir() / "demo"
     duration = args.duration or (FULL_DURATION_S if args.full else DEFAULT_DURATION_S)
-    if args.full and args.inpaint == DEFAULT_DEMO_INPAINT:
-        args.inpaint = "paper"
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
     variants = parse_variants(args.variants)
     print(f"agrivio demo: {len(presets)} simulated sequences × {duration:g} s, variants {', '.join(variants)}, "

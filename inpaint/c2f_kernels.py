@@ -1,0 +1,189 @@
+"""Compiled kernels of the coarse-to-fine paper method (``inpaint.c2f``): the nearest-neighbour-field search,
+candidate block sampling and overlap-averaged pasting. Single-threaded and deterministic (the random search uses a
+fixed-seed linear congruential generator inside the kernel, not numpy's global state).
+
+Block similarity (the paper's gradient-structure MSD plus the mean-removed depth term of ``inpaint.block_search``),
+for a target block centred at t and a source block centred at s (half-size h, per-pixel target weights w):
+
+    Sim = [ Σ_u w_u (1/C) Σ_c (F_c(t+u) − F_c(s+u))²  +  w_d Σ_u w_u (z_u − z̄)² ] / Σ_u w_u,
+    z_u = D(s+u) − (D(t+u) − μ_t),  z̄ = Σ w z / Σ w,   μ_t = Σ w D(t+u) / Σ w
+
+(the depth term is Σ w ((D_t − μ_t) − (D_s − μ_s))², written as the weighted variance of z). ``energy`` is the Sim of
+a flat candidate (F = 0, constant D): the target's own structure energy.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from inpaint.jit import NJIT
+
+
+@numba.njit(**NJIT)
+def _sim(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, ty: int, tx: int, sy: int, sx: int, h: int,
+         w_depth: float, inv_c: float, wsum: float, mu_t: float, bound: float) -> float:
+    """Sim of target (ty, tx) vs source (sy, sx); stops early (returns > bound) once the partial sum exceeds it."""
+    c_n = feat.shape[2]
+    acc = 0.0
+    sz = 0.0
+    szz = 0.0
+    lim = bound * wsum
+    for dy in range(-h, h + 1):
+        for dx in range(-h, h + 1):
+            w = wt[ty + dy, tx + dx]
+            if w == 0.0:
+                continue
+            g = 0.0
+            for c in range(c_n):
+                d = feat[ty + dy, tx + dx, c] - feat[sy + dy, sx + dx, c]
+                g += d * d
+            acc += w * g * inv_c
+            z = dep[sy + dy, sx + dx] - (dep[ty + dy, tx + dx] - mu_t)
+            sz += w * z
+            szz += w * z * z
+        if acc > lim:
+            return np.inf
+    var = szz - sz * sz / wsum
+    return (acc + w_depth * max(var, 0.0)) / wsum
+
+
+@numba.njit(**NJIT)
+def nnf_search(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.ndarray, centres: np.ndarray,
+               init: np.ndarray, nbr: np.ndarray, h: int, iters: int, rmax: int, seed: int, w_depth: float,
+               best: np.ndarray, sim: np.ndarray, energy: np.ndarray) -> None:
+    """PatchMatch (Barnes et al. 2009) over a grid of target blocks.
+
+    ``feat`` H×W×C float32 features, ``dep`` H×W float32 depth (working units), ``wt`` H×W float32 target weights,
+    ``source_ok`` H×W bool (a source block centred there lies in the source region), ``centres`` K×2 int (y, x)
+    block centres (blocks inside the image), ``init`` K×M×2 int candidate source centres tried first (−1: none),
+    ``nbr`` K×4 int neighbour block indices (left, up, right, down; −1: none). ``iters`` alternating scans
+    (forward: propagate from left/up; backward: right/down), each followed by a random search at radii
+    rmax, rmax/2, …, 1 around the current best. Outputs ``best`` K×2 (−1 if no source), ``sim`` K, ``energy`` K.
+    """
+    hh, ww = source_ok.shape
+    k_n = centres.shape[0]
+    c_n = feat.shape[2]
+    inv_c = 1.0 / c_n
+    wsums = np.zeros(k_n)
+    mus = np.zeros(k_n)
+    state = np.uint64(seed) * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+    for k in range(k_n):
+        ty, tx = centres[k, 0], centres[k, 1]
+        s = 0.0
+        sd = 0.0
+        en = 0.0
+        for dy in range(-h, h + 1):
+            for dx in range(-h, h + 1):
+                w = wt[ty + dy, tx + dx]
+                s += w
+                sd += w * dep[ty + dy, tx + dx]
+        s = max(s, 1e-12)
+        mu = sd / s
+        ed = 0.0
+        for dy in range(-h, h + 1):
+            for dx in range(-h, h + 1):
+                w = wt[ty + dy, tx + dx]
+                g = 0.0
+                for c in range(c_n):
+                    g += feat[ty + dy, tx + dx, c] ** 2
+                en += w * g * inv_c
+                e = dep[ty + dy, tx + dx] - mu
+                ed += w * e * e
+        wsums[k] = s
+        mus[k] = mu
+        energy[k] = (en + w_depth * ed) / s
+        best[k, 0] = -1
+        best[k, 1] = -1
+        sim[k] = np.inf
+        for m in range(init.shape[1]):
+            sy, sx = init[k, m, 0], init[k, m, 1]
+            if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
+                continue
+            if sy == best[k, 0] and sx == best[k, 1]:
+                continue
+            v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, s, mu, sim[k])
+            if v < sim[k]:
+                sim[k] = v
+                best[k, 0] = sy
+                best[k, 1] = sx
+    for it in range(iters):
+        fwd = it % 2 == 0
+        for kk in range(k_n):
+            k = kk if fwd else k_n - 1 - kk
+            ty, tx = centres[k, 0], centres[k, 1]
+            for j in range(2):
+                n = nbr[k, j] if fwd else nbr[k, 2 + j]
+                if n < 0 or best[n, 0] < 0:
+                    continue
+                sy = ty + best[n, 0] - centres[n, 0]
+                sx = tx + best[n, 1] - centres[n, 1]
+                if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
+                    continue
+                if sy == best[k, 0] and sx == best[k, 1]:
+                    continue
+                v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, wsums[k], mus[k], sim[k])
+                if v < sim[k]:
+                    sim[k] = v
+                    best[k, 0] = sy
+                    best[k, 1] = sx
+            if best[k, 0] < 0:
+                continue
+            r = rmax
+            while r >= 1:
+                state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+                ry = int((state >> np.uint64(33)) % np.uint64(2 * r + 1)) - r
+                state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+                rx = int((state >> np.uint64(33)) % np.uint64(2 * r + 1)) - r
+                sy = best[k, 0] + ry
+                sx = best[k, 1] + rx
+                r //= 2
+                if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
+                    continue
+                v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, wsums[k], mus[k], sim[k])
+                if v < sim[k]:
+                    sim[k] = v
+                    best[k, 0] = sy
+                    best[k, 1] = sx
+
+
+@numba.njit(**NJIT)
+def sample_blocks(img: np.ndarray, centres: np.ndarray, h: int, inv_scale: float, offsets: np.ndarray,
+                  out: np.ndarray) -> None:
+    """out[k] (b×b, b = 2h+1) = bilinear samples of ``img`` at ((centre_k + u) · inv_scale + offset_k), u the
+    block's pixel offsets, coordinates clamped to the image: the block of a finer level (centres in its pixels)
+    read from ``img``, a level ``1/inv_scale`` times coarser. ``offsets`` K×2 float (y, x) in ``img`` pixels; rows
+    with NaN offsets are left as they are."""
+    hh, ww = img.shape
+    for k in range(centres.shape[0]):
+        oy, ox = offsets[k, 0], offsets[k, 1]
+        if not (oy == oy):
+            continue
+        for dy in range(-h, h + 1):
+            y = (centres[k, 0] + dy) * inv_scale + oy
+            y = min(max(y, 0.0), hh - 1.0)
+            y0 = min(int(y), hh - 2) if hh > 1 else 0
+            fy = y - y0
+            y1 = min(y0 + 1, hh - 1)
+            for dx in range(-h, h + 1):
+                x = (centres[k, 1] + dx) * inv_scale + ox
+                x = min(max(x, 0.0), ww - 1.0)
+                x0 = min(int(x), ww - 2) if ww > 1 else 0
+                fx = x - x0
+                x1 = min(x0 + 1, ww - 1)
+                top = img[y0, x0] * (1.0 - fx) + img[y0, x1] * fx
+                bot = img[y1, x0] * (1.0 - fx) + img[y1, x1] * fx
+                out[k, dy + h, dx + h] = top * (1.0 - fy) + bot * fy
+
+
+@numba.njit(**NJIT)
+def paste_blocks(blocks: np.ndarray, centres: np.ndarray, h: int, window: np.ndarray, acc: np.ndarray,
+                 wacc: np.ndarray) -> None:
+    """acc += window · block, wacc += window at every block's pixels (overlap averaging: acc / wacc)."""
+    for k in range(centres.shape[0]):
+        cy, cx = centres[k, 0], centres[k, 1]
+        for dy in range(-h, h + 1):
+            for dx in range(-h, h + 1):
+                w = window[dy + h, dx + h]
+                acc[cy + dy, cx + dx] += w * blocks[k, dy + h, dx + h]
+                wacc[cy + dy, cx + dx] += w
