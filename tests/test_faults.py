@@ -281,6 +281,38 @@ def test_14_corrupt_depth_cache_chunk_is_reported_and_recomputed(tmp_path, cache
     np.load(chunk)["depth_0"]  # rewritten whole
 
 
+def test_14_corrupt_inpainted_cache_chunk_is_reported_and_recomputed(tmp_path, cache, capsys):
+    from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+
+    seq = RosarioSequence(_bag(tmp_path / "seq.bag"))
+    params = InpaintParams(method="telea")
+    first = list(inpainted_stream(seq, params, cache, progress=False, workers=1))
+    chunks = [c for c in (cache / "depth").rglob("chunk_*.npz") if "inpaint-telea" in str(c)]
+    assert len(chunks) == 1
+    data = chunks[0].read_bytes()
+    chunks[0].write_bytes(data[: len(data) // 3])  # truncated (disk full, killed writer)
+    again = list(inpainted_stream(seq, params, cache, progress=False, workers=1))
+    assert "corrupt depth-cache chunk" in capsys.readouterr().err
+    assert len(again) == len(first)
+    assert all(np.array_equal(a.depth_m, b.depth_m, equal_nan=True) for a, b in zip(first, again))
+
+
+def test_11_image_and_imu_stamps_are_converted_to_seconds_the_same_way(tmp_path):
+    """The run compares image and IMU times in seconds: both must come from integer ns by the same conversion
+    (``ns / 1e9``; ``ns * 1e-9`` differs by one ulp for many stamps, which can move an IMU sample across a frame)."""
+    import inspect
+
+    from pipeline import run_job
+
+    stamps = T0_NS + np.arange(0, 2_000_000_000, 7_000_001, dtype=np.int64)
+    assert np.any(stamps * 1e-9 != stamps / 1e9)                     # the two conversions do differ
+    seq = RosarioSequence(_bag(tmp_path / "seq.bag"))
+    imu = seq.imu_array()
+    imu_ns = np.array([s.stamp_ns for s in seq.imu()], dtype=np.int64)
+    assert np.array_equal(imu[:, 0], imu_ns / 1e9)
+    assert "frame.stamp_ns / 1e9" in inspect.getsource(run_job._run_vio)
+
+
 # ---- 10. stereo pairing is measured and a systematic offset refused ---------------------------------------------
 def _offset_bag(path: Path, rig, right_offset_ns: int, n: int = 20, imu_gap_s: float = 0.0,
                 nan_at: int | None = None, repeat: int = 0) -> Path:
