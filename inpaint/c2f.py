@@ -48,9 +48,8 @@ from inpaint.errors import InpaintInputError
 from inpaint.fusion import FUSION_MODES, softmax_weights
 from inpaint.fusion_net import WEIGHTS_DIR, load_net, normalise, run_net
 from inpaint.gradient import GRADIENT_KINDS, gradient_channels
-from inpaint.method import INVERSE_REF_M, U_MIN, PaperOptions, _Filler
+from inpaint.method import PaperOptions, _Filler, fill_in_domain
 from inpaint.pyramid import masked_pyrdown
-from inpaint.validate import check_inputs, finish
 
 C2F_WEIGHTS_FILE = WEIGHTS_DIR / "fusion_net_c2f.pt"
 ENERGY_EPS = 1e-4
@@ -156,16 +155,8 @@ def inpaint_paper_c2f(depth: np.ndarray, mask: np.ndarray, guide: np.ndarray | N
     ``guide`` is validated but not used (the method works on depth only). Known pixels are returned unchanged.
     """
     opts = C2FOptions.from_kwargs(**options)
-    chk = check_inputs(depth, mask, guide)
-    if not chk.hole.any():
-        return depth.copy()
-    work = chk.depth
-    if opts.domain == "inverse":
-        work = np.where(chk.hole, 0.0, INVERSE_REF_M / np.maximum(chk.depth, 1e-6)).astype(np.float32)
-    filled = _CoarseToFine(work, chk.hole, opts, observer).run()
-    if opts.domain == "inverse":
-        filled = INVERSE_REF_M / np.maximum(filled, U_MIN)
-    return finish(filled, chk, depth)
+    return fill_in_domain(depth, mask, guide, opts.domain,
+                          lambda work, hole: _CoarseToFine(work, hole, opts, observer).run())
 
 
 def _odd(v: float) -> int:

@@ -127,14 +127,24 @@ def inpaint_paper(depth: np.ndarray, mask: np.ndarray, guide: np.ndarray | None 
     Returns float32 H×W; known pixels are returned unchanged.
     """
     opts = PaperOptions.from_kwargs(**options)
+    return fill_in_domain(depth, mask, guide, opts.domain, lambda work, hole: _Filler(work, hole, opts, observer).run())
+
+
+def fill_in_domain(depth: np.ndarray, mask: np.ndarray, guide: np.ndarray | None, domain: str,
+                   fill: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+    """Validate, fill the hole in the chosen domain and finish (known pixels unchanged, range clipped).
+
+    ``domain == "inverse"`` fills ``u = INVERSE_REF_M / depth`` (holes 0) and maps the result back, ``u`` kept
+    ≥ ``U_MIN``; any other value fills depth in metres. ``fill(work, hole)`` returns the filled float32 H×W map.
+    """
     chk = check_inputs(depth, mask, guide)
     if not chk.hole.any():
         return depth.copy()
     work = chk.depth
-    if opts.domain == "inverse":
+    if domain == "inverse":
         work = np.where(chk.hole, 0.0, INVERSE_REF_M / np.maximum(chk.depth, 1e-6)).astype(np.float32)
-    filled = _Filler(work, chk.hole, opts, observer).run()
-    if opts.domain == "inverse":
+    filled = fill(work, chk.hole)
+    if domain == "inverse":
         filled = INVERSE_REF_M / np.maximum(filled, U_MIN)
     return finish(filled, chk, depth)
 
