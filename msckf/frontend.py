@@ -45,7 +45,8 @@ import numpy as np
 from msckf.camera import StereoRig, check_transform
 from msckf.errors import MsckfInputError
 from msckf.frontend_config import FrontendConfig
-from msckf.frontend_depth import DepthReject, depth_to_stereo, rectified_pixels_from_normalised, sample_depth
+from msckf.frontend_depth import (DepthReject, depth_to_stereo, nearest_pixel_values, rectified_pixels_from_normalised,
+                                  sample_depth)
 from msckf.frontend_geometry import (GyroBuffer, camera_rotation, epipolar_distance, rotate_normalised,
                                      triangulated_depths, two_point_ransac)
 from msckf.frontend_grid import cell_index, detect_fast_in_cells, exclusion_mask, top_per_group
@@ -521,11 +522,8 @@ class DepthFrontend(_TrackerBase):
         if depth_sigma is not None:
             if not isinstance(depth_sigma, np.ndarray) or depth_sigma.shape != shape:
                 raise MsckfInputError(f"depth σ map must be a float {shape[1]}x{shape[0]} array (metres)")
-            h, w = shape
-            cu = np.clip(np.rint(np.nan_to_num(rect[:, 0], nan=-1.0)).astype(np.int64), 0, w - 1)
-            cv = np.clip(np.rint(np.nan_to_num(rect[:, 1], nan=-1.0)).astype(np.int64), 0, h - 1)
             with np.errstate(divide="ignore", invalid="ignore"):
-                sigma0 = np.where(has, depth_sigma[cv, cu].astype(np.float64) * z0 / z_rect, np.nan)
+                sigma0 = np.where(has, nearest_pixel_values(depth_sigma, rect) * z0 / z_rect, np.nan)
         obs = FeatureObservations(float(stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
                                   tracks.life.astype(np.int32), sigma0)
         counts["published"] = len(tracks)

@@ -106,6 +106,15 @@ def sample_depth(
     return depth, reason
 
 
+def nearest_pixel_values(img: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """(N,) float64 values of an (H, W) map at the nearest pixels ``rint(px)`` of (N, 2) ``(u, v)`` positions,
+    clipped to the map (non-finite positions read the corner)."""
+    h, w = img.shape
+    u = np.clip(np.rint(np.nan_to_num(px[:, 0], nan=-1.0)).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(np.nan_to_num(px[:, 1], nan=-1.0)).astype(np.int64), 0, h - 1)
+    return img[v, u].astype(np.float64)
+
+
 def rectified_pixels_from_normalised(xy0: np.ndarray, R_left: np.ndarray, K_rect: np.ndarray) -> np.ndarray:
     """Rectified left pixels (N, 2) of raw-cam0 normalised coordinates (N, 2).
 

@@ -36,7 +36,7 @@ from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError
 from msckf.filter import MsckfFilter
 from msckf.frontend import DepthFrontend
-from msckf.frontend_depth import depth_to_stereo, rectified_pixels_from_normalised, sample_depth
+from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, rectified_pixels_from_normalised, sample_depth
 from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
 
@@ -124,16 +124,9 @@ def record_tracks(rig: Any, config: MsckfConfig, seed: int, imu: np.ndarray,
                                 c.min_depth_m, c.max_depth_m)
             tf.z_rect[name] = z
             if sm is not None:
-                tf.sigma_rect[name] = _nearest(sm, rect)
+                tf.sigma_rect[name] = nearest_pixel_values(sm, rect)
         out.append(tf)
     return TrackLog(out, imu, int(seed))
-
-
-def _nearest(img: np.ndarray, px: np.ndarray) -> np.ndarray:
-    h, w = img.shape
-    u = np.clip(np.rint(np.nan_to_num(px[:, 0], nan=-1)).astype(np.int64), 0, w - 1)
-    v = np.clip(np.rint(np.nan_to_num(px[:, 1], nan=-1)).astype(np.int64), 0, h - 1)
-    return img[v, u].astype(np.float64)
 
 
 def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[int, np.ndarray],
@@ -183,7 +176,7 @@ def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[i
             miss = source[fi] == 0
             if np.any(miss):
                 dm, vm, _ = exact_map(fr.index)
-                val = _nearest(np.where(vm, dm, np.nan), fr.rect_px[miss])
+                val = nearest_pixel_values(np.where(vm, dm, np.nan), fr.rect_px[miss])
                 truth[fi][miss] = val
                 source[fi][miss] = np.where(np.isfinite(val), 2, 0)
     for fi in range(len(truth)):
@@ -390,10 +383,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
 
 def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,
                   sigma0: np.ndarray | None) -> FeatureObservations:
-    kwargs: dict[str, Any] = {}
-    if sigma0 is not None and "depth_sigma_m" in FeatureObservations.__dataclass_fields__:
-        kwargs["depth_sigma_m"] = sigma0
-    return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, **kwargs)
+    return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, sigma0)
 
 
 def evaluate_rung(traj: Trajectory, gt_path: str, lever_arm_imu: Any) -> float:

@@ -11,7 +11,6 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from msckf.config import MsckfConfig, load_config
@@ -22,7 +21,7 @@ from pipeline.depth_oracle import (Rung, TrackLog, evaluate_rung, record_tracks,
                                    true_track_depths)
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
-from pipeline.run_job import lever_arms_from_tf
+from pipeline.run_job import _grey, lever_arms_from_tf
 from pipeline.sim.sequence import SimulatedSequence
 
 __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference", "default_config"]
@@ -72,8 +71,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
         if k is None:
             raise ValueError(f"{sim_dir}: frame {fr.index} (stamp {fr.stamp_ns}) has no simulator truth")
         T_world_rect[fr.index] = truth["T_E_rectleft"][k]
-        grey = cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY) if fr.left_bgr.ndim == 3 else fr.left_bgr
-        frames.append((fr.index, fr.stamp_ns / 1e9, grey))  # as a run converts image stamps
+        frames.append((fr.index, fr.stamp_ns / 1e9, _grey(fr.left_bgr)))  # as a run converts image stamps
     imu = seq.imu_array()
     logs: dict[int, TrackLog] = {}
     truth_stats: dict[int, dict[str, float]] = {}
@@ -175,6 +173,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                      max_frames: int | None = None) -> dict[str, Any]:
     """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs)."""
     from msckf.errors import FilterDivergedError
+    from msckf.init import NonStaticStartError
     from msckf.vio import Msckf
     from eval.trajectory import Trajectory
 
@@ -193,12 +192,10 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                 while k < len(imu) and imu[k, 0] <= t:
                     try:
                         vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
-                    except Exception:  # NonStaticStartError: keep feeding, as a run does
+                    except NonStaticStartError:  # keep feeding until a still start, as a run does
                         pass
                     k += 1
-                left = cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY) if fr.left_bgr.ndim == 3 else fr.left_bgr
-                right = cv2.cvtColor(fr.right_bgr, cv2.COLOR_BGR2GRAY) if fr.right_bgr.ndim == 3 else fr.right_bgr
-                pose = vio.add_frame(t, left, right_grey=right)
+                pose = vio.add_frame(t, _grey(fr.left_bgr), right_grey=_grey(fr.right_bgr))
                 if pose is not None:
                     stamps.append(pose.stamp_s)
                     ps.append(pose.p_world)
