@@ -537,20 +537,30 @@ class RosarioSequence:
         if run:
             yield from flush(None)
 
-    def imu_array(self, start_ns: int | None = None, stop_ns: int | None = None) -> np.ndarray:
-        """All IMU samples as an (N, 7) float64 array ``[t_s, gx, gy, gz, ax, ay, az]`` (s, rad/s, m/s²)."""
-        out = np.empty((self.count(L.TOPIC_IMU), 7), dtype=np.float64)
+    def imu_samples(self, start_ns: int | None = None, stop_ns: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """All IMU samples: ``(stamps_ns, data)``, (N,) int64 ns and (N, 6) float64 ``[gx, gy, gz, ax, ay, az]``
+        (rad/s, m/s², IMU frame), after the repeated-stamp policy. Stamps stay integer ns, so callers can order
+        IMU samples against image stamps exactly (a double holds a 2017 epoch stamp only to ≈ 238 ns)."""
+        n_max = self.count(L.TOPIC_IMU)
+        stamps = np.empty(n_max, dtype=np.int64)
+        data = np.empty((n_max, 6), dtype=np.float64)
         n = 0
         for s in self.imu(start_ns, stop_ns):
-            out[n, 0] = s.stamp_ns / 1e9
-            out[n, 1:4] = s.gyro
-            out[n, 4:7] = s.accel
+            stamps[n] = s.stamp_ns
+            data[n, 0:3] = s.gyro
+            data[n, 3:6] = s.accel
             n += 1
-        return out[:n].copy()
+        return stamps[:n].copy(), data[:n].copy()
+
+    def imu_array(self, start_ns: int | None = None, stop_ns: int | None = None) -> np.ndarray:
+        """All IMU samples as an (N, 7) float64 array ``[t_s, gx, gy, gz, ax, ay, az]`` (s, rad/s, m/s²); the
+        seconds are ``stamp_ns / 1e9``, the conversion every image stamp goes through too."""
+        stamps, data = self.imu_samples(start_ns, stop_ns)
+        return np.column_stack([stamps / 1e9, data]) if len(stamps) else np.empty((0, 7), dtype=np.float64)
 
     def imu_stamps_ns(self) -> np.ndarray:
         """(N,) int64 IMU stamps in ns after the repeated-stamp policy (exact, unlike ``imu_array``'s seconds)."""
-        return np.fromiter((s.stamp_ns for s in self.imu()), dtype=np.int64, count=-1)
+        return self.imu_samples()[0]
 
     def gps_fixes(self, start_ns: int | None = None, stop_ns: int | None = None) -> Iterator[GpsFix]:
         """``/gps/fix`` messages in time order."""

@@ -144,7 +144,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     rig = seq.calibration
     variant = "stereo" if job.variant == "stereo" else "depth"
     vio = Msckf(config, rig, variant=variant, seed=job.seed)
-    imu = seq.imu_array()
+    imu_ns, imu = seq.imu_samples()
     depth_store = None
     if job.variant == "depth-raw":
         depth_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams())
@@ -165,13 +165,14 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     k_imu = 0
     try:
         for frame in seq.stereo_frames(stop_index=inputs.max_frames):
-            t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's (imu_array)
-            while k_imu < len(imu) and imu[k_imu, 0] <= t_img:
+            t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's
+            k_end = imu_samples_through(imu_ns, frame.stamp_ns, k_imu)  # ordered in integer ns, not in seconds
+            for k in range(k_imu, k_end):
                 try:
-                    vio.add_imu(imu[k_imu, 0], imu[k_imu, 1:4], imu[k_imu, 4:7])
+                    vio.add_imu(imu_ns[k] / 1e9, imu[k, 0:3], imu[k, 3:6])
                 except NonStaticStartError as exc:  # S-MSCKF needs a still start: wait for one, say so if none
                     non_static = str(exc)
-                k_imu += 1
+            k_imu = k_end
             left = _grey(frame.left_bgr)
             t0 = time.perf_counter()
             if variant == "stereo":
@@ -204,6 +205,13 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     return _poses_to_trajectory(stamps, ps, qs), None
 
 
+def imu_samples_through(imu_stamps_ns: np.ndarray, frame_stamp_ns: int, start: int = 0) -> int:
+    """The end index of the IMU samples a frame at ``frame_stamp_ns`` must see: every sample from ``start`` with a
+    stamp ≤ the frame's, compared in integer ns (imu_stamps_ns: (N,) int64, sorted). In float seconds a sample up
+    to ≈ 238 ns after a 2017-epoch frame compares equal to it and would be fed before the frame."""
+    return max(int(np.searchsorted(imu_stamps_ns, np.int64(frame_stamp_ns), side="right")), start)
+
+
 def _grey(bgr: np.ndarray) -> np.ndarray:
     import cv2
 
@@ -214,7 +222,7 @@ def _run_odometry(inputs: RunInputs, seq: RosarioSequence) -> Trajectory:
     R = np.asarray(inputs.R_base_imu) if inputs.R_base_imu is not None else None
     odom = seq.odom_array()
     if inputs.max_frames is not None:
-        t_end = seq.start_ns * 1e-9 + inputs.max_frames / 15.0
+        t_end = (seq.start_ns + round(inputs.max_frames * 1e9 / 15.0)) / 1e9
         odom = odom[odom[:, 0] <= t_end]
     return run_odometry_ekf(odom, seq.imu_array(), R_base_imu=R).trajectory
 

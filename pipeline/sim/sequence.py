@@ -65,6 +65,12 @@ GPS_PHASE_S = 0.113
 ODOM_PHASE_S = 0.057
 
 
+
+def top_planned_speed(traj: RobotTrajectory, duration_s: float) -> float:
+    """The highest planned speed of ``traj`` over ``[0, duration_s]`` (m/s, sampled every 0.1 s): the speed the
+    EuRoC export's vibration-inclusive IMU noise figures are stated for."""
+    return float(np.max(traj.planned_speed(np.arange(0.0, duration_s + 0.1, 0.1)), initial=0.0))
+
 def _stamps(duration_s: float, rate_hz: float, phase_s: float) -> np.ndarray:
     n = int(np.floor((duration_s - phase_s) * rate_hz + 1e-9)) + 1
     return phase_s + np.arange(max(n, 0)) / rate_hz
@@ -269,7 +275,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     depth_writer = DepthChunkWriter(root / "depth")
     for old in (root / "depth").glob("chunk_*.npz"):
         old.unlink()
-    top_speed = float(np.max(traj.planned_speed(np.arange(0.0, cfg.duration_s + 0.1, 0.1)), initial=0.0))
+    top_speed = top_planned_speed(traj, cfg.duration_s)
     euroc = EurocWriter(root / "euroc", rig, cfg.imu, 15.0, max_speed_m_s=top_speed) if export_euroc else None
     imu_rows: list[np.ndarray] = []
     cam_poses_E = np.zeros((len(t_cam), 4, 4))
