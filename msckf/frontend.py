@@ -69,6 +69,9 @@ class FrontendDebug:
         counts: per-step feature counts (``prev``, ``tracked``, ``stereo_ok``, ``ransac_ok``, ``new``,
             ``pruned``, ``published``).
         timings_ms: wall time of each step, milliseconds (diagnostics only; never feeds back into results).
+        depth_sigma_m: (N,) σ of ``depth_m`` in metres as given to the filter; NaN without depth or stated σ.
+        depth_measured: (N,) bool, the feature's depth pixel was a direct measurement (False: filled, or no
+            depth); None when the caller gave no measured mask.
     """
 
     stamp_s: float
@@ -81,6 +84,8 @@ class FrontendDebug:
     depth_reject: np.ndarray
     counts: dict = field(default_factory=dict)
     timings_ms: dict = field(default_factory=dict)
+    depth_sigma_m: np.ndarray | None = None
+    depth_measured: np.ndarray | None = None
 
 
 @dataclass
@@ -459,7 +464,8 @@ class DepthFrontend(_TrackerBase):
         self._K_rect = rig.K_rect
 
     def process(self, stamp_s: float, left_grey: np.ndarray, depth_m: np.ndarray,
-                depth_valid: np.ndarray, depth_sigma: np.ndarray | None = None) -> FeatureObservations:
+                depth_valid: np.ndarray, depth_sigma: np.ndarray | None = None,
+                depth_measured: np.ndarray | None = None) -> FeatureObservations:
         """Track features into a new raw left image and attach depths read from the rectified depth map.
 
         Args:
@@ -469,6 +475,8 @@ class DepthFrontend(_TrackerBase):
             depth_valid: (H, W) bool, True where ``depth_m`` holds a depth.
             depth_sigma: optional (H, W) float σ of ``depth_m`` in metres (per pixel; read at the feature's nearest
                 rectified pixel and carried to cam0 Z as ``depth_sigma_m``); None: no stated σ.
+            depth_measured: optional (H, W) bool, True where ``depth_m`` is a direct measurement (not a fill);
+                read at the same pixel, reported in ``last_debug.depth_measured`` only.
         Returns:
             The frame's features: ``DEPTH_MAP`` (with ``cam1_xy`` and ``depth_m``) or ``MONO``.
         """
@@ -524,12 +532,18 @@ class DepthFrontend(_TrackerBase):
                 raise MsckfInputError(f"depth σ map must be a float {shape[1]}x{shape[0]} array (metres)")
             with np.errstate(divide="ignore", invalid="ignore"):
                 sigma0 = np.where(has, nearest_pixel_values(depth_sigma, rect) * z0 / z_rect, np.nan)
+        measured = None
+        if depth_measured is not None:
+            if not isinstance(depth_measured, np.ndarray) or depth_measured.shape != shape:
+                raise MsckfInputError(f"depth measured mask must be a bool {shape[1]}x{shape[0]} array")
+            measured = has & nearest_pixel_values(depth_measured.astype(bool), rect).astype(bool)
         obs = FeatureObservations(float(stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
                                   tracks.life.astype(np.int32), sigma0)
         counts["published"] = len(tracks)
         counts["with_depth"] = int(has.sum())
         self.last_debug = FrontendDebug(float(stamp_s), obs.ids, tracks.px0.copy(), px1, obs.track_length, source,
-                                        z0, reject, counts, timings)
+                                        z0, reject, counts, timings,
+                                        None if sigma0 is None else sigma0.copy(), measured)
         return obs
 
 

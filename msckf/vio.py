@@ -79,7 +79,8 @@ class Msckf:
 
     def add_frame(self, stamp_s: float, left_grey: np.ndarray, right_grey: np.ndarray | None = None,
                   depth: np.ndarray | None = None, depth_valid: np.ndarray | None = None,
-                  depth_sigma: np.ndarray | None = None) -> PoseEstimate | None:
+                  depth_sigma: np.ndarray | None = None, depth_measured: np.ndarray | None = None
+                  ) -> PoseEstimate | None:
         """Process one frame; returns the pose at ``stamp_s`` (None while initialising).
 
         Args:
@@ -90,6 +91,8 @@ class Msckf:
             depth_valid: bool H×W; default: finite and positive depth.
             depth_sigma: float H×W σ of ``depth`` in metres (variant ``depth``), or None (the filter's configured
                 depth noise model applies).
+            depth_measured: bool H×W, True where ``depth`` is a direct measurement rather than a fill; only
+                reported per feature in ``last_debug.depth_measured`` (the filter sees the σ), or None.
         Raises:
             MsckfInputError: missing or malformed images for the variant.
             FilterDivergedError: the filter diverged (the run failed; the reason is in the exception).
@@ -105,11 +108,9 @@ class Msckf:
             if depth_valid is None:
                 depth_valid = np.isfinite(d) & (d > 0)
             valid = np.asarray(depth_valid, dtype=bool)
-            if depth_sigma is None:
-                obs = self.frontend.process(float(stamp_s), left_grey, d, valid)
-            else:
-                obs = self.frontend.process(float(stamp_s), left_grey, d, valid,
-                                            np.asarray(depth_sigma, dtype=np.float32))
+            sigma = None if depth_sigma is None else np.asarray(depth_sigma, dtype=np.float32)
+            measured = None if depth_measured is None else np.asarray(depth_measured, dtype=bool)
+            obs = self.frontend.process(float(stamp_s), left_grey, d, valid, sigma, measured)
         return self.add_features(obs)
 
     def add_features(self, obs: FeatureObservations) -> PoseEstimate | None:

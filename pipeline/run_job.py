@@ -99,6 +99,9 @@ class _FrameLog:
         self.uv: list[np.ndarray] = []
         self.track_len: list[np.ndarray] = []
         self.source: list[np.ndarray] = []
+        self.depth: list[np.ndarray] = []
+        self.depth_sigma: list[np.ndarray] = []
+        self.measured: list[np.ndarray] = []
 
     def add(self, stamp_s: float, debug: Any, elapsed_s: float) -> None:
         self.stamps.append(stamp_s)
@@ -107,9 +110,16 @@ class _FrameLog:
             uv, tl, src = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
         else:
             uv, tl, src = debug.cam0_px, debug.track_length, debug.source
+        n = len(src)
+        depth = getattr(debug, "depth_m", None)
+        sigma = getattr(debug, "depth_sigma_m", None)
+        measured = getattr(debug, "depth_measured", None)
         self.uv.append(np.asarray(uv, dtype=np.float32).reshape(-1, 2))
         self.track_len.append(np.asarray(tl, dtype=np.int32))
         self.source.append(np.asarray(src, dtype=np.uint8))
+        self.depth.append(np.full(n, np.nan, np.float32) if depth is None else np.asarray(depth, np.float32))
+        self.depth_sigma.append(np.full(n, np.nan, np.float32) if sigma is None else np.asarray(sigma, np.float32))
+        self.measured.append(np.zeros(n, bool) if measured is None else np.asarray(measured, bool))
         self.n_features.append(len(self.uv[-1]))
         self.n_depth.append(int(np.count_nonzero(self.source[-1] > 0)))
 
@@ -123,7 +133,25 @@ class _FrameLog:
                     feature_offsets=np.concatenate([[0], np.cumsum(counts)]),
                     feature_uv=np.concatenate(self.uv) if self.uv else np.zeros((0, 2), np.float32),
                     feature_track_length=np.concatenate(self.track_len) if self.track_len else np.zeros(0, np.int32),
-                    feature_source=np.concatenate(self.source) if self.source else np.zeros(0, np.uint8))
+                    feature_source=np.concatenate(self.source) if self.source else np.zeros(0, np.uint8),
+                    feature_depth_m=_cat(self.depth, np.float32),
+                    feature_depth_sigma_m=_cat(self.depth_sigma, np.float32),
+                    feature_depth_measured=_cat(self.measured, bool))
+
+    def depth_summary(self) -> dict[str, float]:
+        """How much of the run's feature depth was measured vs filled, and its stated σ_Z/Z (medians)."""
+        z, sig, meas = _cat(self.depth, np.float64), _cat(self.depth_sigma, np.float64), _cat(self.measured, bool)
+        has = np.isfinite(z)
+        if not has.any():
+            return {}
+        out: dict[str, float] = {"features_with_depth": int(has.sum()),
+                                 "filled_fraction": float(np.mean(~meas[has]))}
+        rel = sig / z
+        for name, sel in (("measured", has & meas), ("filled", has & ~meas)):
+            r = rel[sel & np.isfinite(rel)]
+            if r.size:
+                out[f"sigma_rel_median_{name}"] = float(np.median(r))
+        return out
 
     def timing_summary(self) -> dict[str, float]:
         ms = np.asarray(self.frame_ms)
@@ -131,6 +159,10 @@ class _FrameLog:
             return {}
         return {"frame_ms_median": float(np.median(ms)), "frame_ms_p95": float(np.percentile(ms, 95)),
                 "fps": float(1e3 / np.mean(ms))}
+
+
+def _cat(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
+    return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
 
 
 def _poses_to_trajectory(stamps: list[float], p: list[np.ndarray], q: list[np.ndarray]) -> Trajectory:
@@ -184,13 +216,16 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                                        f"{frame.stamp_ns} ns" + (f" (it holds {d.stamp_ns} ns)" if d else ""))
                 if raw_store is None:
                     sigma = sigma_model.raw_sigma(d.depth_m, d.valid)
+                    measured = d.valid
                 else:
                     r = raw_store.get(frame.index)
                     if r is None or r.stamp_ns != frame.stamp_ns:
                         raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
                                            f"{frame.stamp_ns} ns")
                     sigma = sigma_model.filled_sigma(d.depth_m, r.valid, inputs.inpaint_method)
-                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma)
+                    measured = r.valid
+                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma,
+                                     depth_measured=measured)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
             if pose is not None:
                 stamps.append(pose.stamp_s)
@@ -275,7 +310,7 @@ def run_job(job: Job) -> dict[str, Any]:
         estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
         gt_path=str(Path(inputs.gt).resolve()) if inputs.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
-               "frames": int(len(log.stamps)), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
+               "frames": int(len(log.stamps)), "feature_depth": log.depth_summary(), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
                "job": {"source": job.source, **{k: v for k, v in job.options.items()
                                                 if k != "R_base_imu" and k not in _RECORD_OPTIONS}}},
     )

@@ -43,6 +43,27 @@ def test_every_run_has_a_sane_record(runs_dir):
     assert all(r["inpaint_method"] == "telea" for r in inpainted)
 
 
+def test_depth_runs_log_measured_and_filled_feature_depth_with_sigma(runs_dir):
+    """Per feature the frame log says whether its depth was measured or filled and what σ the filter was given;
+    only the inpainted run has filled depths, and fills are stated less certain than measurements."""
+    import numpy as np
+
+    summaries = {}
+    for variant in ("depth-raw", "depth-inpainted"):
+        folder = runs_dir / "tiny" / variant / "seed0"
+        log = np.load(folder / "frames.npz")
+        z, sig, meas = log["feature_depth_m"], log["feature_depth_sigma_m"], log["feature_depth_measured"]
+        assert z.shape == sig.shape == meas.shape == log["feature_source"].shape
+        has = np.isfinite(z)
+        assert np.array_equal(has, log["feature_source"] > 0) and np.all(np.isfinite(sig[has]))
+        assert not np.any(meas[~has])
+        summaries[variant] = json.loads((folder / "record.json").read_text())["feature_depth"]
+    raw, inp = summaries["depth-raw"], summaries["depth-inpainted"]
+    assert raw["filled_fraction"] == 0.0 and "sigma_rel_median_filled" not in raw
+    assert inp["filled_fraction"] > 0.0
+    assert inp["sigma_rel_median_filled"] > 3 * inp["sigma_rel_median_measured"]
+
+
 def test_report_holds_table2_and_all_variants(runs_dir):
     md = (runs_dir / "report" / "report.md").read_text()
     html = (runs_dir / "report" / "report.html").read_text()

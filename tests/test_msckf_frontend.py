@@ -506,3 +506,30 @@ def test_matching_candidates_in_rounds_selects_what_matching_all_would(wall_seq)
     pick_rounds = np.flatnonzero(ok_rounds)[top_per_group(cell[ok_rounds], resp[ok_rounds], quota)]
     assert np.array_equal(pick_all, pick_rounds)
     assert ok_rounds.sum() < ok_all.sum()               # and fewer points were matched
+
+
+def test_depth_frontend_reports_each_features_sigma_and_whether_its_depth_was_measured(wall_seq):
+    """The replay and the report tell measured from filled depth per feature: the front end reads the caller's
+    measured mask and σ map at the same pixel as the depth (left half measured, right half 'filled')."""
+    rig = wall_seq.rig
+    d = wall_seq.depth[0]
+    valid = np.isfinite(d)
+    measured = valid.copy()
+    measured[:, d.shape[1] // 2:] = False
+    sigma = np.where(measured, 0.01, 0.5).astype(np.float32)
+    fd = DepthFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=0)
+    fd.process(wall_seq.stamps[0], wall_seq.left[0], np.nan_to_num(d), valid, sigma, measured)
+    dbg = fd.last_debug
+    has = np.isfinite(dbg.depth_m)
+    assert has.sum() > 20 and dbg.depth_measured is not None
+    rect = rig.rectify_left_pixels(dbg.cam0_px)
+    right_half = np.rint(rect[:, 0]) >= d.shape[1] // 2
+    assert np.all(dbg.depth_measured[has] == ~right_half[has])
+    assert np.all(~dbg.depth_measured[~has])                          # no depth: never "measured"
+    rel = dbg.depth_sigma_m[has] / dbg.depth_m[has] * d[np.clip(np.rint(rect[has, 1]).astype(int), 0, d.shape[0] - 1),
+                                                        np.clip(np.rint(rect[has, 0]).astype(int), 0, d.shape[1] - 1)]
+    assert np.allclose(rel, np.where(right_half[has], 0.5, 0.01), rtol=1e-3)
+    assert np.all(np.isnan(dbg.depth_sigma_m[~has]))
+    fd2 = DepthFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=0)
+    fd2.process(wall_seq.stamps[0], wall_seq.left[0], np.nan_to_num(d), valid)
+    assert fd2.last_debug.depth_measured is None and fd2.last_debug.depth_sigma_m is None
