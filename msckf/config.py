@@ -59,6 +59,12 @@ class MsckfConfig:
             S-MSCKF uses the 5 % quantile with dof = #observations − 1 (issue #124: with an honest σ it rejects
             nearly every update — measured: all of them on the simulated world — hence its inflated σ);
             ``chi2_quantile=0.05, chi2_dof="observations", feature_noise=0.035`` reproduces that pairing.
+        robust_k: Huber-style weight of a gated-in feature: when its χ² per degree of freedom γ/dof exceeds
+            ``robust_k``, its σ is scaled by ``sqrt(γ / (dof · robust_k))`` (its whole residual — pixel and
+            depth rows — counts with that weight). 0 (default) disables it.
+        track_drift_psd: q of the tracking-drift model (normalised²/s; ``msckf.update.whiten_track_drift``): the
+            pixel errors of one track are correlated as ``σ² δ_ij + q·min(t_i, t_j)`` from its first observation
+            in the window. 0 (default) keeps them independent.
         max_update_rows: [port] S-MSCKF stops stacking lost-feature Jacobians after 1500 rows (and drops the
             rest) to bound its run time; this port's update cost does not grow with rows, so the default is
             0 = no cap. A positive value restores the S-MSCKF behaviour.
@@ -135,6 +141,8 @@ class MsckfConfig:
     feature_noise: float = 0.007
     chi2_quantile: float = 0.95
     chi2_dof: str = "residual"
+    robust_k: float = 0.0
+    track_drift_psd: float = 0.0
     max_update_rows: int = 0
     update_method: str = "qr"
     observability_constrained: bool = True
@@ -202,7 +210,8 @@ class MsckfConfig:
         for name in ("velocity_cov", "gyro_bias_cov", "acc_bias_cov", "extrinsic_rotation_cov",
                      "extrinsic_translation_cov", "depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma",
                      "rotation_threshold",
-                     "translation_threshold", "tracking_rate_threshold", "max_update_rows"):
+                     "translation_threshold", "tracking_rate_threshold", "max_update_rows", "robust_k",
+                     "track_drift_psd"):
             if getattr(self, name) < 0:
                 raise bad(name, "must be >= 0")
         for name in ("outer_loop_max_iteration", "inner_loop_max_iteration"):

@@ -27,7 +27,7 @@ from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_cov
 from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
-                          find_redundant_clones, gating_chi2, inject_correction, inverse_depth_sigma,
+                          find_redundant_clones, gating_chi2, downweight_features, whiten_track_drift, inject_correction, inverse_depth_sigma,
                           measurement_blocks, qr_reference_update, schur_information)
 
 __all__ = ["MsckfFilter", "FrameStats"]
@@ -403,9 +403,10 @@ class MsckfFilter:
         rr = rows[:, None]
         use_depth_row = (fs.src[rr, slots] == DepthSource.DEPTH_MAP) if spec.depth_row \
             else np.zeros(slots.shape, dtype=bool)
-        return measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
-                                  cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
-                                  cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
+        b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
+                               cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
+                               cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
+        return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.track_drift_psd)
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""
@@ -427,7 +428,10 @@ class MsckfFilter:
             st.gate_dof.append(np.asarray(b.n_rows - 3))
             st.n_gated_out += int(np.count_nonzero(~ok))
             if np.any(ok):
-                accepted.append(b.subset(ok))
+                kept = b.subset(ok)
+                if c.robust_k > 0:
+                    kept = downweight_features(kept, gamma[ok] / np.maximum(kept.n_rows - 3, 1), c.robust_k)
+                accepted.append(kept)
                 acc_rows_count.append(b.n_rows[ok] - 3)
         if not accepted:
             return 0

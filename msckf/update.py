@@ -40,7 +40,7 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
-           "schur_information", "ekf_update_information", "qr_reference_update", "inject_correction",
+           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_reference_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
 
@@ -261,6 +261,51 @@ def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float) -> np.ndarray:
         y = np.linalg.solve(C[det_ok], b[det_ok][..., None])[..., 0]
         gamma[det_ok] = g0[det_ok] - np.einsum("ka,ka->k", b[det_ok], y)
     return gamma
+
+
+def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarray, sigma: float,
+                       drift_psd: float) -> FeatureBatch:
+    """Whiten the pixel rows of each feature for tracking drift that accumulates along the track.
+
+    A KLT track's error is not white: it drifts as a random walk (measured on the simulator: the error
+    increment grows ≈ linearly with the lag, ≈ 0.02 px² per frame, while the frame-to-frame jitter is < 0.1 px).
+    Per feature and per image coordinate, the observation errors are modelled as
+    ``C_ij = σ² δ_ij + q · (min(t_i, t_j) − t_first)`` (q = ``drift_psd``, normalised²/s; t in s from the
+    feature's first observation in the window). The rows of each coordinate (u0, v0, u1, v1) are multiplied by
+    ``σ L⁻¹`` with ``L Lᵀ = C``, so that the update and the χ² gate can keep R = σ² I. Depth rows are untouched.
+
+    Args:
+        times_s: (k, n) observation times of the batch's clone columns (s). valid: (k, n) observation exists.
+        sigma: the white pixel σ (normalised units), the update's σ. drift_psd: q ≥ 0 (0 returns ``batch``).
+    """
+    if drift_psd <= 0.0 or batch.r.size == 0:
+        return batch
+    k, n, R = batch.r.shape
+    t = np.where(valid, times_s, np.inf)
+    t0 = np.min(t, axis=1, keepdims=True)
+    t = np.where(valid, times_s - np.where(np.isfinite(t0), t0, 0.0), 0.0)
+    ratio = drift_psd / (sigma * sigma)
+    r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
+    eye = np.eye(n)
+    for row in range(min(R, 4)):
+        ok = batch.rows[:, :, row] & valid
+        if not ok.any():
+            continue
+        both = ok[:, :, None] & ok[:, None, :]
+        C = np.where(both, ratio * np.minimum(t[:, :, None], t[:, None, :]), 0.0) + eye
+        L = np.linalg.cholesky(C)
+        r[:, :, row] = np.linalg.solve(L, batch.r[:, :, row][..., None])[..., 0]
+        Hx[:, :, row] = np.linalg.solve(L, batch.Hx[:, :, row])
+        Hf[:, :, row] = np.linalg.solve(L, batch.Hf[:, :, row])
+    return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
+
+
+def downweight_features(batch: FeatureBatch, gamma_per_dof: np.ndarray, k: float) -> FeatureBatch:
+    """Huber-style weights: each feature whose χ²/dof exceeds ``k`` has its residual and Jacobian rows scaled by
+    ``w = sqrt(k / (γ/dof))`` (its σ by 1/w); the others are unchanged. gamma_per_dof: (k_features,)."""
+    w = 1.0 / np.sqrt(np.maximum(np.asarray(gamma_per_dof, dtype=np.float64) / k, 1.0))
+    return FeatureBatch(batch.pos, batch.Hx * w[:, None, None, None], batch.Hf * w[:, None, None, None],
+                        batch.r * w[:, None, None], batch.rows)
 
 
 def schur_information(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

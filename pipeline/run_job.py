@@ -102,6 +102,27 @@ class _FrameLog:
         self.depth: list[np.ndarray] = []
         self.depth_sigma: list[np.ndarray] = []
         self.measured: list[np.ndarray] = []
+        self.gate_ratio: list[np.ndarray] = []
+        self.gated = 0
+        self.gated_out = 0
+
+    def add_gate(self, stats: Any) -> None:
+        """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature."""
+        for g, dof in zip(stats.gate_gamma, stats.gate_dof):
+            g, dof = np.asarray(g, dtype=np.float64), np.broadcast_to(np.asarray(dof, dtype=np.float64), np.shape(g))
+            ok = (dof > 0) & np.isfinite(g)
+            self.gate_ratio.append(g[ok] / dof[ok])
+            self.gated += int(g.size)
+        self.gated_out += int(stats.n_gated_out)
+
+    def gate_summary(self) -> dict[str, float]:
+        """The χ² gate over the run: median and mean γ/dof (≈ 1 when the measurement noise is calibrated) and the
+        fraction of gated features that were rejected."""
+        r = _cat(self.gate_ratio, np.float64)
+        if r.size == 0:
+            return {}
+        return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
+                "features_gated": self.gated, "rejected_fraction": float(self.gated_out / max(self.gated, 1))}
 
     def add(self, stamp_s: float, debug: Any, elapsed_s: float) -> None:
         self.stamps.append(stamp_s)
@@ -227,6 +248,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma,
                                      depth_measured=measured)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
+            log.add_gate(vio.last_stats)
             if pose is not None:
                 stamps.append(pose.stamp_s)
                 ps.append(pose.p_world)
@@ -310,7 +332,8 @@ def run_job(job: Job) -> dict[str, Any]:
         estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
         gt_path=str(Path(inputs.gt).resolve()) if inputs.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
-               "frames": int(len(log.stamps)), "feature_depth": log.depth_summary(), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
+               "frames": int(len(log.stamps)), "feature_depth": log.depth_summary(),
+               "chi2_gate": log.gate_summary(), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
                "job": {"source": job.source, **{k: v for k, v in job.options.items()
                                                 if k != "R_base_imu" and k not in _RECORD_OPTIONS}}},
     )

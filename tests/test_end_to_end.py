@@ -58,6 +58,9 @@ def test_depth_runs_log_measured_and_filled_feature_depth_with_sigma(runs_dir):
         assert np.array_equal(has, log["feature_source"] > 0) and np.all(np.isfinite(sig[has]))
         assert not np.any(meas[~has])
         summaries[variant] = json.loads((folder / "record.json").read_text())["feature_depth"]
+        gate = json.loads((folder / "record.json").read_text())["chi2_gate"]
+        assert gate["features_gated"] > 0 and 0.0 <= gate["rejected_fraction"] < 0.5
+        assert 0.0 < gate["gamma_per_dof_median"] and gate["gamma_per_dof_mean"] >= gate["gamma_per_dof_median"] / 10
     raw, inp = summaries["depth-raw"], summaries["depth-inpainted"]
     assert raw["filled_fraction"] == 0.0 and "sigma_rel_median_filled" not in raw
     assert inp["filled_fraction"] > 0.0

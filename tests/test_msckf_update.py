@@ -160,3 +160,60 @@ def test_pruning_policy_follows_msckf_vio():
     assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[3]]
     cl3.R_w_c[cl3.order[3]] = so3_exp(np.array([0.0, 0.0, 0.3]))      # 17° > 15°: not redundant
     assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[1]]
+
+
+def test_robust_weight_scales_a_features_sigma_by_its_excess_chi2(running_filter):
+    """A feature with γ/dof = 4·k enters with half the weight (σ doubled); features within
+    ``k`` are untouched, and a weighted feature moves the state less than the unweighted one."""
+    from msckf.update import downweight_features
+
+    flt, rows, order = running_filter
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise, depth_row=True)
+    b = flt._batch(rows[:6], flt.features.has[rows[:6]][:, order], spec)
+    sigma = flt.config.feature_noise
+    gamma = gating_chi2(flt.P, b, sigma)
+    dof = b.n_rows - 3
+    k = 2.0
+    g_dof = np.array([0.5, 1.9, 4.0 * k, 9.0 * k, 0.1, 2.0 * k])
+    w = downweight_features(b, g_dof, k)
+    scale = np.array([1.0, 1.0, 0.5, 1.0 / 3.0, 1.0, 1.0 / np.sqrt(2.0)])
+    assert np.allclose(w.r, b.r * scale[:, None, None])
+    assert np.allclose(w.Hx, b.Hx * scale[:, None, None, None])
+    gw = gating_chi2(flt.P, w, sigma)
+    assert np.allclose(gw[[0, 1, 4]], gamma[[0, 1, 4]]) and np.all(gw[[2, 3, 5]] < gamma[[2, 3, 5]])
+    one = b.subset(np.array([False, False, True, False, False, False]))
+    dx_full, _, _ = qr_reference_update(flt.P, one, sigma, len(order))
+    dx_weighted, _, _ = qr_reference_update(flt.P, w.subset(np.array([False, False, True, False, False, False])),
+                                            sigma, len(order))
+    assert np.linalg.norm(dx_weighted) < np.linalg.norm(dx_full)
+    assert dof.min() > 0
+
+
+def test_track_drift_whitening_makes_the_gate_statistic_chi2_for_drifting_tracks():
+    """Tracks whose pixel error is white jitter plus a random walk (as KLT drift on the simulator is): with the
+    drift model the χ² statistic has its nominal mean (γ/dof ≈ 1); treating the errors as white with the same
+    jitter σ inflates it several times. q = 0 leaves the batch untouched."""
+    from msckf.update import FeatureBatch, whiten_track_drift
+
+    rng = np.random.default_rng(7)
+    k, n, sigma, q, dt = 600, 10, 3e-4, 2.4e-6, 1.0 / 15.0
+    t = np.tile(np.arange(n) * dt, (k, 1)) + 5.0
+    valid = np.ones((k, n), bool)
+    valid[: k // 3, 7:] = False                                      # shorter tracks, padded
+    rows = np.zeros((k, n, 4), bool)
+    rows[:, :, :2] = valid[:, :, None]
+    Hf = rng.normal(size=(k, n, 4, 3)) * rows[..., None]
+    steps = rng.normal(size=(k, n, 2)) * np.sqrt(q * dt)
+    steps[:, 0] = 0.0
+    err = np.cumsum(steps, axis=1) + rng.normal(size=(k, n, 2)) * sigma
+    r = np.zeros((k, n, 4))
+    r[:, :, :2] = err + np.einsum("knrj,kj->knr", Hf[:, :, :2], rng.normal(size=(k, 3)))
+    r *= rows
+    b = FeatureBatch(np.zeros((k, n), np.int64), np.zeros((k, n, 4, 6)), Hf, r, rows)
+    P = np.zeros((21 + 6, 21 + 6))
+    dof = b.n_rows - 3
+    white = gating_chi2(P, b, sigma) / dof
+    whitened = gating_chi2(P, whiten_track_drift(b, t, valid, sigma, q), sigma) / dof
+    assert 0.9 < whitened.mean() < 1.1
+    assert white.mean() > 3.0
+    assert whiten_track_drift(b, t, valid, sigma, 0.0) is b
