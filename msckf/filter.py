@@ -28,7 +28,7 @@ from msckf.triangulation import TriangulationParams, initial_guess, triangulate_
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
                           find_redundant_clones, gating_chi2, downweight_features, whiten_track_drift, inject_correction, inverse_depth_sigma,
-                          measurement_blocks, qr_reference_update, schur_information)
+                          measurement_blocks, qr_update, schur_information)
 
 __all__ = ["MsckfFilter", "FrameStats"]
 
@@ -461,7 +461,7 @@ class MsckfFilter:
             padded = [self._pad_batch(b, nmax, n_cl) for b in accepted]
             merged = FeatureBatch(*(np.concatenate([getattr(b, f) for b in padded])
                                     for f in ("pos", "Hx", "Hf", "r", "rows")))
-            dx, P_new, _ = qr_reference_update(self.P, merged, sigma, n_cl)
+            dx, P_new = qr_update(self.P, merged, sigma, n_cl)
         self.P = P_new
         inject_correction(self.state, self.clones, dx)
         return used

@@ -20,7 +20,7 @@ Marginalising the feature. S-MSCKF projects each feature's residual on the left 
 ``Λ = H_xᵀH_x − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀH_x``, ``η = H_xᵀr − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀr``, where H_xᵀH_x is
 block-diagonal per clone — so the cost grows with features × clones, not with rows × columns². The update is
 then ``δx = P_:c (Λ̃ P_cc + I)⁻¹ η̃`` and ``P⁺ = P − P_:c (Λ̃ P_cc + I)⁻¹ Λ̃ P_c:`` (Λ̃ = Λ/σ², η̃ = η/σ²;
-push-through identity, exact). ``method="qr"`` runs the literal S-MSCKF path (per-feature QR null space,
+push-through identity, exact). ``method="qr"`` (:func:`qr_update`, the default) runs the literal S-MSCKF path (per-feature QR null space,
 stacked QR, Joseph-form Kalman update) — tests check the two agree.
 
 χ² gate: per feature, ``γ = r_oᵀ(H_o P H_oᵀ + σ²I)⁻¹ r_o`` on the projected residual, computed without the
@@ -40,7 +40,7 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
-           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_reference_update", "inject_correction",
+           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
 
@@ -390,22 +390,22 @@ def ekf_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigm
     return dx, P_new
 
 
-def qr_reference_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Literal S-MSCKF path for checking: per-feature QR null space of H_f, stacked QR compression,
-    Kalman update in Joseph form. Also returns each feature's projected χ² γ computed from H_o directly.
+def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -> tuple[np.ndarray, np.ndarray]:
+    """The production EKF update (S-MSCKF's): per-feature QR null space of H_f, stacked QR compression, Kalman
+    update in Joseph form (keeps P⁺ positive definite where the symmetric form lost it on depth runs).
 
+    Args:
+        P: (21 + 6C, 21 + 6C) covariance. batch: the gated features. sigma: measurement σ (normalised units).
+        n_clones: C.
     Returns:
-        (δx, P⁺, gamma (k,)).
+        (δx (21 + 6C,), P⁺).
     """
     k, n, R, _ = batch.Hx.shape
     ncol = 6 * n_clones
-    Hs, rs, gam = [], [], np.full(k, np.inf)
-    Pcc = P[IMU_DIM:, IMU_DIM:]
+    Hs, rs = [], []
     for f in range(k):
         rows = batch.rows[f].reshape(-1)
-        m = int(rows.sum())
-        if m <= 3:
+        if int(rows.sum()) <= 3:
             continue
         Hx = np.zeros((n * R, ncol))
         for j in range(n):
@@ -417,13 +417,10 @@ def qr_reference_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clon
         r = batch.r[f].reshape(-1)[rows]
         Q, _ = np.linalg.qr(Hf, mode="complete")
         Q2 = Q[:, 3:]
-        Ho, ro = Q2.T @ Hx, Q2.T @ r
-        S = Ho @ Pcc @ Ho.T + sigma * sigma * np.eye(m - 3)
-        gam[f] = float(ro @ np.linalg.solve(S, ro))
-        Hs.append(Ho)
-        rs.append(ro)
+        Hs.append(Q2.T @ Hx)
+        rs.append(Q2.T @ r)
     if not Hs:
-        return np.zeros(P.shape[0]), P, gam
+        return np.zeros(P.shape[0]), P
     H = np.vstack(Hs)
     r = np.concatenate(rs)
     if H.shape[0] > H.shape[1]:
@@ -436,7 +433,7 @@ def qr_reference_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clon
     dx = K @ r
     IKH = np.eye(P.shape[0]) - K @ Hfull
     P_new = IKH @ P @ IKH.T + sigma * sigma * K @ K.T
-    return dx, 0.5 * (P_new + P_new.T), gam
+    return dx, 0.5 * (P_new + P_new.T)
 
 
 def inject_correction(state: ImuState, clones: CloneStore, dx: np.ndarray) -> None:
