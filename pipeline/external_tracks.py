@@ -25,11 +25,13 @@ EXTERNAL_PREFIX = "external"
 @dataclass(frozen=True)
 class ExternalTrack:
     """One external estimate: ``name`` (as given), the TUM ``path`` and its ``trajectory`` (stamps in seconds on
-    the bag clock, positions in metres, body = IMU as in the EuRoC export)."""
+    the bag clock, positions in metres, body = IMU as in the EuRoC export); ``sequence`` it belongs to when given
+    as ``NAME@SEQUENCE=path`` (None: the only sequence of the comparison)."""
 
     name: str
     path: Path
     trajectory: Trajectory
+    sequence: str | None = None
 
     @property
     def label(self) -> str:
@@ -37,15 +39,19 @@ class ExternalTrack:
         return f"{EXTERNAL_PREFIX}: {self.name}"
 
 
-def parse_external(spec: str) -> tuple[str, Path]:
-    """``NAME=path.tum`` → ``(NAME, path)``; AgrivioError (one line) for a spec without ``=`` or an empty side."""
+def parse_external(spec: str) -> tuple[str, str | None, Path]:
+    """``NAME[@SEQUENCE]=path.tum`` → ``(NAME, SEQUENCE or None, path)``; AgrivioError (one line) for a spec
+    without ``=`` or with an empty part."""
     name, sep, path = spec.partition("=")
     name, path = name.strip(), path.strip()
-    if not sep or not name or not path:
-        raise AgrivioError(f"--external {spec!r}: expected NAME=path.tum (e.g. openvins=traj_openvins.tum)")
+    name, at, sequence = name.partition("@")
+    name, sequence = name.strip(), sequence.strip()
+    if not sep or not name or not path or (at and not sequence):
+        raise AgrivioError(f"--external {spec!r}: expected NAME=path.tum or NAME@SEQUENCE=path.tum "
+                           f"(e.g. openvins=traj_openvins.tum)")
     if any(c in name for c in "/\\"):
         raise AgrivioError(f"--external {spec!r}: NAME must not contain a path separator")
-    return name, Path(path)
+    return name, sequence or None, Path(path)
 
 
 def load_external(specs: Sequence[str]) -> list[ExternalTrack]:
@@ -53,7 +59,7 @@ def load_external(specs: Sequence[str]) -> list[ExternalTrack]:
     tracks: list[ExternalTrack] = []
     seen: set[str] = set()
     for spec in specs:
-        name, path = parse_external(spec)
+        name, sequence, path = parse_external(spec)
         if name in seen:
             raise AgrivioError(f"--external {spec!r}: the name {name!r} is given twice")
         seen.add(name)
@@ -67,7 +73,7 @@ def load_external(specs: Sequence[str]) -> list[ExternalTrack]:
             raise AgrivioError(f"{path}: external trajectory ({name}) unreadable ({type(exc).__name__})") from None
         if len(traj) < 3:
             raise AgrivioError(f"{path}: external trajectory ({name}) has {len(traj)} pose(s); need at least 3")
-        tracks.append(ExternalTrack(name, path, traj))
+        tracks.append(ExternalTrack(name, path, traj, sequence))
     return tracks
 
 

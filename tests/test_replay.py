@@ -177,3 +177,18 @@ def test_fit_eye_frames_the_points():
     d = np.linalg.norm(np.subtract(eye.position, eye.look_target))
     assert 3.0 <= d < 20.0 and eye.position[2] > eye.look_target[2]
     assert lay.fit_eye(np.zeros((0, 3))) is None
+
+
+def test_external_estimate_is_aligned_like_the_runs(tmp_path):
+    from pipeline.commands.replay import external_run
+    from pipeline.external_tracks import load_external
+
+    run_dir = _write_run_folder(tmp_path, "depth-raw", 0)
+    lr = load_run(run_dir)
+    ext_path = tmp_path / "openvins.tum"
+    ext_path.write_text((run_dir / "estimate.tum").read_text())  # the same estimate, from "another system"
+    (track,) = load_external([f"openvins={ext_path}"])
+    ext = external_run(track, lr.gt, lr.eval_options)
+    assert ext.name == "external: openvins" and ext.kind == "external"
+    assert np.allclose(ext.positions, lr.run.positions, atol=1e-9)
+    assert ext.ate_rmse_m == pytest.approx(lr.run.ate_rmse_m, rel=1e-6)
