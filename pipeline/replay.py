@@ -5,7 +5,7 @@ Everything is logged on three timelines: ``seconds`` (duration from the first fr
 
 * ``world/gt``: the ground truth (magenta strip); per run ``world/<run>/path`` (the estimate at the point the ground
   truth measures, e.g. the GPS antenna, aligned exactly as its ATE was computed), ``world/<run>/trajectory`` (the
-  current position), ``world/<run>/camera`` (one small frustum at the current camera pose) and
+  current position), ``world/<run>/camera`` (one small frustum at the current path point, oriented as the camera) and
   ``world/<run>/label`` (the run's name, once). A run has one colour everywhere (:mod:`pipeline.replay_layout`).
 * ``camera/left`` (left image) with ``camera/left/features/<run>``: tracked features coloured by depth source
   (mono / measured depth / inpainted depth / stereo), one overlay per run;
@@ -44,9 +44,8 @@ class ReplayRun:
         positions: (N, 3) estimated positions of the point the ground truth measures (e.g. the GPS antenna), in the
             ground-truth frame (aligned as the run's ATE was computed), metres.
         quats_xyzw: (N, 4) estimated body (IMU or base_link) orientations in the ground-truth frame.
-        body_positions: (N, 3) estimated body origins in the ground-truth frame, metres (None: ``positions``).
-        T_body_cam: (4, 4) maps left-camera points into the body frame, for the frustum; None: the body frame is
-            drawn as a forward-looking (x forward, z up) frustum.
+        T_body_cam: (4, 4) maps left-camera points into the body frame; its rotation orients the frustum drawn at
+            ``positions``. None: the body frame is drawn as a forward-looking (x forward, z up) frustum.
         gt_stamps_s: (M,) stamps of the poses associated with a ground-truth fix, seconds.
         gt_errors_m: (M,) translational error at those poses after alignment, metres.
         ate_rmse_m: the run's recorded ATE RMSE, metres (None: unknown).
@@ -62,7 +61,6 @@ class ReplayRun:
     stamps_s: np.ndarray
     positions: np.ndarray
     quats_xyzw: np.ndarray
-    body_positions: np.ndarray | None = None
     T_body_cam: np.ndarray | None = None
     gt_stamps_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     gt_errors_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -199,6 +197,9 @@ def _log_static(rec: rr.RecordingStream, runs: Sequence[ReplayRun], ents: Sequen
         rec.log("world/gt", rr.LineStrips3D([np.asarray(gt_positions, dtype=np.float32)], colors=[lay.GT_COLOUR],
                                             radii=0.03), static=True)
     rec.log("camera/left/features", rr.AnnotationContext(list(lay.FEATURE_CLASSES)), static=True)
+    # an RGBA PNG overlay would be smaller, but the web viewer draws its transparent pixels black
+    rec.log("camera/depth_raw/holes", rr.AnnotationContext([(0, "valid", (0, 0, 0, 0)), (1, "hole", lay.HOLE_RGBA)]),
+            static=True)
     width, height = image_size
     for i, (run, ent) in enumerate(zip(runs, ents)):
         colour = lay.run_colour(i)
@@ -274,16 +275,13 @@ def _log_run_columns(rec: rr.RecordingStream, run: ReplayRun, ent: str, colour: 
         idx = clock.indexes(stamps)
         rec.send_columns(f"world/{ent}/trajectory", indexes=idx,
                          columns=rr.Points3D.columns(positions=pos.astype(np.float32)))
-        body = pos if run.body_positions is None else np.asarray(run.body_positions, dtype=np.float64)
+        # The frustum marks where the run is now and where its camera looks: at the path point (the GT point, e.g.
+        # the antenna ≈ 0.6 m above the camera on Rosario) so that it sits on its path, oriented as the camera.
         R_world_body = Rotation.from_quat(np.asarray(run.quats_xyzw, dtype=np.float64))
-        if run.T_body_cam is not None:
-            T = np.asarray(run.T_body_cam, dtype=np.float64)
-            R_world_cam = R_world_body * Rotation.from_matrix(T[:3, :3])
-            p_world_cam = body + R_world_body.apply(T[:3, 3])
-        else:
-            R_world_cam, p_world_cam = R_world_body, body
+        R_world_cam = R_world_body if run.T_body_cam is None else \
+            R_world_body * Rotation.from_matrix(np.asarray(run.T_body_cam, dtype=np.float64)[:3, :3])
         rec.send_columns(f"world/{ent}/camera", indexes=idx,
-                         columns=rr.Transform3D.columns(translation=p_world_cam, quaternion=R_world_cam.as_quat()))
+                         columns=rr.Transform3D.columns(translation=pos, quaternion=R_world_cam.as_quat()))
     gt_t = np.asarray(run.gt_stamps_s, dtype=np.float64)
     if len(gt_t):
         err = np.asarray(run.gt_errors_m, dtype=np.float64)
@@ -318,7 +316,7 @@ def _log_frame(rec: rr.RecordingStream, frame: ReplayFrame, runs: Sequence[Repla
             rec.log(entity, _depth_png(depth_mm(depth), "turbo", mm_range))
     if frame.hole_mask is not None:
         mask = np.asarray(frame.hole_mask, dtype=bool)
-        rec.log("camera/depth_raw/holes", _holes_png(mask))
+        rec.log("camera/depth_raw/holes", rr.SegmentationImage(mask.astype(np.uint8), opacity=1.0, draw_order=10.0))
         rec.log("metrics/hole_ratio/raw", rr.Scalars(float(mask.mean())))
     if frame.depth_exact is not None and frame.depth_inpainted is not None:
         err = np.abs(np.asarray(frame.depth_inpainted, np.float64) - np.asarray(frame.depth_exact, np.float64))
@@ -338,20 +336,6 @@ def _depth_png(mm: np.ndarray, colormap: str, range_mm: tuple[float, float]) -> 
         raise ValueError("replay: PNG encoding of a depth map failed")
     return rr.EncodedDepthImage(png.tobytes(), media_type="image/png", meter=1000.0, colormap=colormap,
                                 depth_range=range_mm)
-
-
-def _holes_png(mask: np.ndarray) -> rr.EncodedImage:
-    """(h, w) bool hole mask as an RGBA PNG: :data:`~pipeline.replay_layout.HOLE_RGBA` on holes, transparent
-    elsewhere, drawn above the depth colours."""
-    import cv2
-
-    rgba = np.zeros(mask.shape + (4,), dtype=np.uint8)
-    r, g, b, a = lay.HOLE_RGBA
-    rgba[mask] = (b, g, r, a)  # OpenCV writes BGRA
-    ok, png = cv2.imencode(".png", rgba, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-    if not ok:
-        raise ValueError("replay: PNG encoding of a hole mask failed")
-    return rr.EncodedImage(contents=png.tobytes(), media_type="image/png", draw_order=10.0)
 
 
 def depth_mm(depth_m: np.ndarray) -> np.ndarray:

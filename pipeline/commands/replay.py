@@ -109,7 +109,7 @@ def load_run(run_dir: Path) -> LoadedRun:
             ev, at_point, body = aligned_like_ate(gt, est, eval_options)
         except EvalInputError as exc:
             raise AgrivioError(f"{est_path}: cannot be aligned with {gt_path}: {exc}") from None
-        run.positions, run.body_positions, run.quats_xyzw = at_point.positions, body.positions, body.quats_xyzw
+        run.positions, run.quats_xyzw = at_point.positions, body.quats_xyzw
         run.gt_stamps_s, run.gt_errors_m = ev.association.est.stamps_s, ev.ate.errors_m
         recorded = rr_rec.metric("ate_rmse_m")
         run.ate_rmse_m = recorded if recorded is not None else float(ev.ate.trans.rmse)
@@ -133,7 +133,7 @@ def external_run(track: ExternalTrack, gt: Trajectory, options: EvalOptions) -> 
     ev = evaluate_external(track, gt, options)
     _, at_point, body = aligned_like_ate(gt, track.trajectory, options)
     return ReplayRun(name=track.label, stamps_s=track.trajectory.stamps_s, positions=at_point.positions,
-                     quats_xyzw=body.quats_xyzw, body_positions=body.positions,
+                     quats_xyzw=body.quats_xyzw,
                      gt_stamps_s=ev.association.est.stamps_s, gt_errors_m=ev.ate.errors_m,
                      ate_rmse_m=float(ev.ate.trans.rmse), kind="external")
 
