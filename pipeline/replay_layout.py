@@ -121,13 +121,14 @@ def blueprint(feature_runs: Sequence[str], has_depth: bool, has_error: bool, eye
     if has_depth:
         depth_views = [rrb.Spatial2DView(name=f"raw depth 0–{DEPTH_RANGE_M[1]:g} m (holes magenta)",
                                          origin="camera/depth_raw"),
-                       rrb.Spatial2DView(name=f"inpainted depth 0–{DEPTH_RANGE_M[1]:g} m", origin="camera/depth_inpainted")]
+                       rrb.Spatial2DView(name=f"inpainted depth 0–{DEPTH_RANGE_M[1]:g} m",
+                                         origin="camera/depth_inpainted")]
         if has_error:
             depth_views.append(rrb.Spatial2DView(name=f"|inpainted − exact| 0–{ERROR_RANGE_M[1]:g} m",
                                                  origin="camera/depth_error"))
         right_rows.append(rrb.Horizontal(*depth_views))
     right_rows.append(rrb.TextDocumentView(name="legend", origin="legend"))
-    right_col = rrb.Vertical(*right_rows, row_shares=[3, 3, 2][-len(right_rows):] if len(right_rows) == 3 else [3, 1])
+    right_col = rrb.Vertical(*right_rows, row_shares=[3] * (len(right_rows) - 1) + [2])
     return rrb.Blueprint(
         rrb.Horizontal(left_col, right_col, column_shares=[1, 1]),
         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),

@@ -63,17 +63,17 @@ class LoadedRun:
     raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def aligned_like_ate(ref: Trajectory, est: Trajectory, options: EvalOptions) -> tuple[Evaluation, Trajectory,
-                                                                                         Trajectory]:
-    """Evaluate ``est`` as its ATE was computed; return the evaluation, the whole estimate at the point the ground
-    truth measures (lever arm applied) in the GT frame, and the whole estimate's body poses in the GT frame.
+def placed_like_ate(ev: Evaluation, est: Trajectory) -> tuple[Trajectory, Trajectory]:
+    """The whole estimate ``est`` in the GT frame as its evaluation ``ev`` compared it: at the point the ground
+    truth measures (lever arm applied) and as body poses.
 
     The alignment is fitted on the lever-arm-shifted estimate, so it is applied to the shifted estimate for the
-    path compared with the ground truth; the same rigid transform moves the body poses (for the camera frustum).
+    path compared with the ground truth (applying it to the unshifted one drew paths a lever arm off the GT); the
+    same rigid transform gives the body orientations.
     """
-    ev = evaluate(ref, est, options)
-    shifted = apply_lever_arm(est, np.asarray(options.lever_arm_m)) if options.lever_arm_m is not None else est
-    return ev, ev.alignment.apply(shifted), ev.alignment.apply(est)
+    lever = ev.options.lever_arm_m
+    shifted = apply_lever_arm(est, np.asarray(lever)) if lever is not None else est
+    return ev.alignment.apply(shifted), ev.alignment.apply(est)
 
 
 def load_run(run_dir: Path) -> LoadedRun:
@@ -106,7 +106,8 @@ def load_run(run_dir: Path) -> LoadedRun:
     if gt_path and Path(gt_path).is_file() and len(est.stamps_s) >= 3:
         try:
             gt = read_tum(gt_path)
-            ev, at_point, body = aligned_like_ate(gt, est, eval_options)
+            ev = evaluate(gt, est, eval_options)
+            at_point, body = placed_like_ate(ev, est)
         except EvalInputError as exc:
             raise AgrivioError(f"{est_path}: cannot be aligned with {gt_path}: {exc}") from None
         run.positions, run.quats_xyzw = at_point.positions, body.quats_xyzw
@@ -131,7 +132,7 @@ def load_run(run_dir: Path) -> LoadedRun:
 def external_run(track: ExternalTrack, gt: Trajectory, options: EvalOptions) -> ReplayRun:
     """An external estimate as a replay run, aligned like agrivio's VIO runs."""
     ev = evaluate_external(track, gt, options)
-    _, at_point, body = aligned_like_ate(gt, track.trajectory, options)
+    at_point, body = placed_like_ate(ev, track.trajectory)
     return ReplayRun(name=track.label, stamps_s=track.trajectory.stamps_s, positions=at_point.positions,
                      quats_xyzw=body.quats_xyzw,
                      gt_stamps_s=ev.association.est.stamps_s, gt_errors_m=ev.ate.errors_m,
