@@ -309,7 +309,7 @@ def _log_frame(rec: rr.RecordingStream, frame: ReplayFrame, runs: Sequence[Repla
             continue
         uv, _track_len, cls = feats
         rec.log(f"camera/left/features/{ent}",
-                rr.Points2D(np.asarray(uv, dtype=np.float32), radii=3.0, class_ids=np.asarray(cls, dtype=np.uint16)))
+                rr.Points2D(np.asarray(uv, dtype=np.float32), radii=4.0, class_ids=np.asarray(cls, dtype=np.uint16)))
     mm_range = (1000.0 * lay.DEPTH_RANGE_M[0], 1000.0 * lay.DEPTH_RANGE_M[1])
     for entity, depth in (("camera/depth_raw", frame.depth_raw), ("camera/depth_inpainted", frame.depth_inpainted)):
         if depth is not None:

@@ -109,7 +109,10 @@ def blueprint(feature_runs: Sequence[str], has_depth: bool, has_error: bool, eye
     eye_controls = None if eye is None else rrb.EyeControls3D(position=eye.position, look_target=eye.look_target,
                                                               eye_up=eye.up)
     view3d = rrb.Spatial3DView(name="trajectories (GT magenta)", origin="world", eye_controls=eye_controls)
-    plots = [rrb.TimeSeriesView(name=title, origin=f"metrics/{key}") for key, title in PLOTS]
+    # Plot legends would cover the curves; runs are told apart by their colour (legend panel, 3-D labels) and the
+    # titles say which line is which. The one-series hole-ratio plot keeps its legend.
+    plots = [rrb.TimeSeriesView(name=title, origin=f"metrics/{key}",
+                                plot_legend=rrb.PlotLegend(visible=key == "hole_ratio")) for key, title in PLOTS]
     left_col = rrb.Vertical(view3d, rrb.Grid(*plots, grid_columns=2), row_shares=[5, 4])
     right_rows: list[rrb.Container] = []
     if feature_runs:
