@@ -42,9 +42,18 @@ def _color(i: int) -> str:
     return _COLORS[i % len(_COLORS)]
 
 
+#: Labels starting with this mark estimates from other systems (``agrivio compare --external``): drawn dashed.
+EXTERNAL_LABEL_PREFIX = "external:"
+
+
+def _linestyle(label: str) -> str:
+    return "--" if label.startswith(EXTERNAL_LABEL_PREFIX) else "-"
+
+
 def plot_top_view(reference: Trajectory | None, estimates: Mapping[str, Trajectory], title: str = "",
                   fmt: str = "png") -> bytes:
-    """Top view (x east, y north, metres) of the reference and of each aligned estimate (label → trajectory)."""
+    """Top view (x east, y north, metres) of the reference and of each aligned estimate (label → trajectory);
+    external estimates (labels ``external: …``) dashed."""
     fig = _new_figure(6.4, 5.6)
     ax = fig.add_subplot()
     if reference is not None and len(reference):
@@ -53,7 +62,8 @@ def plot_top_view(reference: Trajectory | None, estimates: Mapping[str, Trajecto
         ax.plot(reference.positions[0, 0], reference.positions[0, 1], "ko", ms=5)
     for i, (label, traj) in enumerate(estimates.items()):
         if len(traj):
-            ax.plot(traj.positions[:, 0], traj.positions[:, 1], color=_color(i), lw=1.2, label=label)
+            ax.plot(traj.positions[:, 0], traj.positions[:, 1], color=_color(i), lw=1.2, ls=_linestyle(label),
+                    label=label)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal", adjustable="datalim")
@@ -71,7 +81,7 @@ def plot_error_over_time(series: Mapping[str, tuple[np.ndarray, np.ndarray]], ti
     for i, (label, (t, e)) in enumerate(series.items()):
         t = np.asarray(t, dtype=np.float64)
         if t.size:
-            ax.plot(t - t[0], np.asarray(e), color=_color(i), lw=1.0, label=label)
+            ax.plot(t - t[0], np.asarray(e), color=_color(i), lw=1.0, ls=_linestyle(label), label=label)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("translational error (m)")
     ax.grid(True, alpha=0.3)

@@ -83,8 +83,9 @@ def test_replay_loads_back_with_rerun(runs_dir, tmp_path):
     assert main(["replay", str(runs_dir / "tiny" / "depth-raw" / "seed0"),
                  str(runs_dir / "tiny" / "depth-inpainted" / "seed0"), "--out", str(out), "--every", "3"]) == 0
     rows = recorded_entities(out)
-    for entity in ("/camera/left", "/camera/depth_raw", "/camera/depth_inpainted", "/camera/holes", "/world/gt",
-                   "/world/depth-raw_seed0/trajectory", "/metrics/depth-inpainted_seed0/ate_m"):
+    for entity in ("/camera/left", "/camera/depth_raw", "/camera/depth_inpainted", "/camera/depth_raw/holes",
+                   "/camera/depth_error", "/world/gt", "/world/depth-raw_seed0/trajectory",
+                   "/metrics/ate/depth-inpainted_seed0/error_at_gt"):
         assert entity in rows, f"{entity} missing"
 
 

@@ -6,6 +6,11 @@ once; failed runs counted and listed), compares ``depth-raw`` with ``depth-inpai
 (paper Table 2 layout, Welch test, bootstrap CI) and writes ``report.md``, ``report.html`` (self-contained),
 ``summary.json`` and ``figures/*.png`` into DIR (default RUNS_DIR/report). Records that point to their estimate
 and ground-truth TUM files (``estimate_path``, ``gt_path``, relative to the record) add trajectory plots.
+
+``--external NAME=path.tum`` (repeatable; ``NAME@SEQUENCE=path.tum`` when RUNS_DIR holds several sequences) adds a
+trajectory from another system (OpenVINS, ORB-SLAM3, VINS-Fusion, … run on the ``agrivio simulate --euroc`` export,
+body = IMU) as a row ``external: NAME``, evaluated against the same ground truth with the same association,
+alignment and lever arm as the sequence's VIO runs.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from eval.report import build_report
 from eval.trajectory import read_tum
 from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
+from pipeline.external_tracks import evaluate_external, external_record, load_external
 from pipeline.run_identity import collapse_duplicates, inputs_section
 
 BENCH_NAMES = ("inpaint_bench.md", "inpaint_bench.json")
@@ -40,6 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="report title")
     p.add_argument("--no-trajectories", action="store_true",
                    help="skip loading estimate/GT files (no top-view and error-over-time figures)")
+    p.add_argument("--external", action="append", default=[], metavar="NAME=path.tum",
+                   help="another system's TUM trajectory (body = IMU), evaluated like the VIO runs (repeatable; "
+                        "NAME@SEQUENCE=path.tum to pick the sequence)")
     p.set_defaults(func=run)
 
 
@@ -96,6 +105,49 @@ def options_for(rec: RunRecord) -> EvalOptions:
     return EvalOptions(**kwargs)
 
 
+def external_records(specs: Sequence[str], found: Sequence[tuple[Path, RunRecord]]
+                     ) -> tuple[list[tuple[Path, RunRecord]], list[str]]:
+    """Evaluate each ``--external`` spec like the VIO runs of its sequence; records (keyed by the TUM path) and
+    one note per external estimate. AgrivioError (one line) for a bad spec, file or sequence."""
+    tracks = load_external(specs)
+    if not tracks:
+        return [], []
+    sequences = sorted({r.sequence for _, r in found})
+    out: list[tuple[Path, RunRecord]] = []
+    notes: list[str] = []
+    for track in tracks:
+        seq = track.sequence
+        if seq is None:
+            if len(sequences) != 1:
+                raise AgrivioError(f"--external {track.name}: the runs hold {len(sequences)} sequences "
+                                   f"({', '.join(sequences)}); name one: {track.name}@SEQUENCE={track.path}")
+            seq = sequences[0]
+        # the template: an ok VIO run of the sequence with its GT (the same association, alignment, lever arm)
+        candidates = [(p, r) for p, r in found if r.sequence == seq and r.ok and r.gt_path]
+        vio = [(p, r) for p, r in candidates if r.variant != "odometry"]
+        if not (vio or candidates):
+            raise AgrivioError(f"--external {track.name}: no successful run of sequence {seq!r} with a ground truth "
+                               f"to evaluate it against (sequences: {', '.join(sequences)})")
+        path, template = (vio or candidates)[0]
+        gt_path = _resolve(path.parent, template.gt_path or "")
+        try:
+            ref = read_tum(gt_path)
+        except EvalInputError as exc:
+            raise AgrivioError(str(exc)) from None
+        opts = options_for(template)
+        if template.variant == "odometry":
+            raise AgrivioError(f"--external {track.name}: sequence {seq!r} has only odometry runs; their lever arm "
+                               f"(base_link) does not apply to an IMU-frame estimate")
+        evaluation = evaluate_external(track, ref, opts)
+        rec = external_record(track, seq, str(gt_path.resolve()), evaluation)
+        out.append((track.path, rec))
+        notes.append(f"`{track.label}` is an external estimate ({track.path}), evaluated like the `{template.variant}` "
+                     f"runs of {seq}: {opts.align} alignment, {opts.max_diff_s * 1000:g} ms association"
+                     + (", lever arm applied" if opts.lever_arm_m is not None else "") +
+                     f"; ATE RMSE {evaluation.ate.trans.rmse:.3f} m over {len(evaluation.association)} pairs.")
+    return out, notes
+
+
 def load_evaluations(records: Sequence[tuple[Path, RunRecord]]) -> tuple[dict[tuple[str, str], Evaluation], list[str]]:
     """Evaluate one representative run per (sequence, variant) from its TUM files."""
     groups: dict[tuple[str, str], list[tuple[Path, RunRecord]]] = {}
@@ -147,8 +199,10 @@ def _cell(v: object) -> str:
 
 
 def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str = DEFAULT_TITLE,
-                            trajectories: bool = True, verbose: bool = True) -> tuple[Path, str]:
-    """Build the comparison report of every run record under ``runs_dir`` and write it into ``out``.
+                            trajectories: bool = True, verbose: bool = True,
+                            external: Sequence[str] = ()) -> tuple[Path, str]:
+    """Build the comparison report of every run record under ``runs_dir`` (plus the ``external`` TUM specs,
+    ``NAME[@SEQUENCE]=path``) and write it into ``out``.
 
     Returns the output folder and the Markdown text of the tables (the one-screen summary).
     """
@@ -163,6 +217,9 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
     for line in duplicates:
         print(f"warning: {line}", file=sys.stderr)
     section = inputs_section(found)
+    ext, ext_notes = external_records(external, found)
+    found = [*found, *ext]
+    notes += ext_notes
     evaluations: dict[tuple[str, str], Evaluation] = {}
     if trajectories:
         evaluations, more = load_evaluations(found)
@@ -192,5 +249,6 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
 
 
 def run(args: argparse.Namespace) -> int:
-    write_comparison_report(args.runs_dir, args.out, args.title, trajectories=not args.no_trajectories)
+    write_comparison_report(args.runs_dir, args.out, args.title, trajectories=not args.no_trajectories,
+                            external=args.external)
     return 0

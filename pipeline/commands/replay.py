@@ -1,7 +1,11 @@
 """``agrivio replay RUN_DIR [RUN_DIR ...] --out FILE.rrd``: a rerun recording of one or more runs side by side.
 
-Each RUN_DIR is a run folder (``OUT/<sequence>/<variant>/seed<k>``) of the same sequence. Open the result with
-``rerun FILE.rrd`` (the viewer ships with ``rerun-sdk``: ``.venv/bin/rerun FILE.rrd``).
+Each RUN_DIR is a run folder (``OUT/<sequence>/<variant>/seed<k>``) of the same sequence. Estimates are drawn in the
+ground-truth frame exactly as their ATE was computed (lever arm, association, alignment of the run record), so each
+path lies on the ground truth within its ATE. ``--external NAME=path.tum`` (repeatable) adds a trajectory from
+another system (e.g. OpenVINS on the ``agrivio simulate --euroc`` export, body = IMU), evaluated like the VIO runs.
+Every frame's images are logged unless ``--every N`` (then every N-th frame's images; poses and metrics stay at
+full rate). Open the result with ``rerun FILE.rrd`` (``.venv/bin/rerun FILE.rrd``).
 """
 
 from __future__ import annotations
@@ -9,21 +13,26 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from eval.evaluate import evaluate
+from eval.alignment import apply_lever_arm
+from eval.errors import EvalInputError
+from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.records import RunRecord
-from eval.trajectory import read_tum
+from eval.trajectory import Trajectory, read_tum
 from pipeline.bag_reader import RosarioSequence
 from pipeline.commands.compare import options_for
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
 from pipeline.errors import AgrivioError
+from pipeline.external_tracks import ExternalTrack, evaluate_external, load_external
 from pipeline.inpaint_stage import InpaintParams
 from pipeline.replay import ReplayFrame, ReplayRun, write_replay
+from pipeline.replay_features import feature_classes
 from pipeline.run_job import ESTIMATE_NAME, FRAMES_NAME
 
 
@@ -32,12 +41,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", type=Path, help="run folder(s) of one sequence (holding record.json)")
     p.add_argument("--out", type=Path, required=True, help="output .rrd file")
-    p.add_argument("--every", type=int, default=1, help="log every N-th frame's images (default 1)")
+    p.add_argument("--every", type=int, default=1,
+                   help="image stride: log the images of every N-th frame (default 1 = all frames); poses, "
+                        "features counts and metrics are logged for every frame regardless")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
+    p.add_argument("--external", action="append", default=[], metavar="NAME=path.tum",
+                   help="another system's TUM trajectory (body = IMU), evaluated like the VIO runs (repeatable)")
     p.set_defaults(func=run)
 
 
-def _load_run(run_dir: Path) -> tuple[dict, ReplayRun, np.ndarray | None]:
+@dataclass
+class LoadedRun:
+    """A run folder read for the replay: its record, evaluation options, ``run`` (features still with msckf's
+    ``DepthSource``), the ground truth it was evaluated against (or None) and its raw per-frame feature log."""
+
+    record: dict
+    options: dict
+    eval_options: EvalOptions
+    run: ReplayRun
+    gt: Trajectory | None
+    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def placed_like_ate(ev: Evaluation, est: Trajectory) -> tuple[Trajectory, Trajectory]:
+    """The whole estimate ``est`` in the GT frame as its evaluation ``ev`` compared it: at the point the ground
+    truth measures (lever arm applied) and as body poses.
+
+    The alignment is fitted on the lever-arm-shifted estimate, so it is applied to the shifted estimate for the
+    path compared with the ground truth (applying it to the unshifted one drew paths a lever arm off the GT); the
+    same rigid transform gives the body orientations.
+    """
+    lever = ev.options.lever_arm_m
+    shifted = apply_lever_arm(est, np.asarray(lever)) if lever is not None else est
+    return ev.alignment.apply(shifted), ev.alignment.apply(est)
+
+
+def load_run(run_dir: Path) -> LoadedRun:
+    """Read one run folder (record, estimate, GT, frame log); AgrivioError naming the file on bad input."""
     rec_path = run_dir / "record.json"
     try:
         record = json.loads(rec_path.read_text())
@@ -47,84 +87,147 @@ def _load_run(run_dir: Path) -> tuple[dict, ReplayRun, np.ndarray | None]:
         raise AgrivioError(f"{rec_path}: not valid JSON ({exc})") from None
     job = record.get("job") or {}
     opts = job.get("options", job)
-    name = f"{record.get('variant')} seed{record.get('seed')}"
+    variant = str(record.get("variant"))
+    name = f"{variant} seed{record.get('seed')}"
     est_path = run_dir / ESTIMATE_NAME
     if not est_path.is_file():
         raise AgrivioError(f"{est_path}: the run left no estimate (status {record.get('status')}: "
                            f"{record.get('failure_reason')})")
-    est = read_tum(est_path)
+    try:
+        est = read_tum(est_path)
+        rr_rec = RunRecord.from_dict(record, source=str(rec_path))
+        eval_options = options_for(rr_rec)
+    except EvalInputError as exc:
+        raise AgrivioError(str(exc)) from None
+    kind = "odometry" if variant == "odometry" else "VIO"
+    run = ReplayRun(name=name, stamps_s=est.stamps_s, positions=est.positions, quats_xyzw=est.quats_xyzw, kind=kind)
+    gt = None
     gt_path = record.get("gt_path")
-    positions, quats, ate_m, stamps = est.positions, est.quats_xyzw, np.full(len(est.stamps_s), np.nan), est.stamps_s
-    gt_positions = None
     if gt_path and Path(gt_path).is_file() and len(est.stamps_s) >= 3:
-        ref = read_tum(gt_path)
-        ev = evaluate(ref, est, options_for(RunRecord.from_dict(record, source=str(rec_path))))
-        # whole estimate in the GT frame (the alignment is rigid); errors at associated poses
-        aligned = ev.alignment.apply(est)
-        positions, quats = aligned.positions, aligned.quats_xyzw
-        idx = np.searchsorted(est.stamps_s, ev.est_aligned.stamps_s)
-        ate_m[np.clip(idx, 0, len(ate_m) - 1)] = np.linalg.norm(ev.est_aligned.positions - ev.ref.positions, axis=1)
-        gt_positions = ref.positions
+        try:
+            gt = read_tum(gt_path)
+            ev = evaluate(gt, est, eval_options)
+            at_point, body = placed_like_ate(ev, est)
+        except EvalInputError as exc:
+            raise AgrivioError(f"{est_path}: cannot be aligned with {gt_path}: {exc}") from None
+        run.positions, run.quats_xyzw = at_point.positions, body.quats_xyzw
+        run.gt_stamps_s, run.gt_errors_m = ev.association.est.stamps_s, ev.ate.errors_m
+        recorded = rr_rec.metric("ate_rmse_m")
+        run.ate_rmse_m = recorded if recorded is not None else float(ev.ate.trans.rmse)
+    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     frames_npz = run_dir / FRAMES_NAME
-    features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    f_stamps, n_feat, f_ms = np.zeros(0), np.zeros(0), np.zeros(0)
     if frames_npz.is_file():
         with np.load(frames_npz) as z:
-            f_stamps, n_feat, f_ms = z["stamps_s"], z["n_features"], z["frame_ms"]
+            run.frame_stamps_s, run.n_features, run.frame_ms = z["stamps_s"], z["n_features"], z["frame_ms"]
             off = z["feature_offsets"]
-            for i in range(len(f_stamps)):
+            src_all = z["feature_source"]
+            run.n_with_depth = z["n_depth"] if "n_depth" in z.files else \
+                np.array([np.count_nonzero(src_all[off[i]:off[i + 1]]) for i in range(len(off) - 1)])
+            for i in range(len(run.frame_stamps_s)):
                 sl = slice(off[i], off[i + 1])
-                features[i] = (z["feature_uv"][sl], z["feature_track_length"][sl], z["feature_source"][sl])
-    run = ReplayRun(name=name, stamps_s=stamps, positions=positions, quats_xyzw=quats, T_imu_cam=np.eye(4),
-                    ate_m=ate_m, frame_stamps_s=f_stamps, n_features=n_feat, frame_ms=f_ms, features=features)
-    return {"record": record, "options": opts}, run, gt_positions
+                raw_features[i] = (z["feature_uv"][sl], z["feature_track_length"][sl], src_all[sl])
+    return LoadedRun(record, opts, eval_options, run, gt, raw_features)
 
 
-def _frames(seq: RosarioSequence, raw: DepthCache | None, filled: DepthCache | None, every: int,
+def external_run(track: ExternalTrack, gt: Trajectory, options: EvalOptions) -> ReplayRun:
+    """An external estimate as a replay run, aligned like agrivio's VIO runs."""
+    ev = evaluate_external(track, gt, options)
+    at_point, body = placed_like_ate(ev, track.trajectory)
+    return ReplayRun(name=track.label, stamps_s=track.trajectory.stamps_s, positions=at_point.positions,
+                     quats_xyzw=body.quats_xyzw,
+                     gt_stamps_s=ev.association.est.stamps_s, gt_errors_m=ev.ate.errors_m,
+                     ate_rmse_m=float(ev.ate.trans.rmse), kind="external")
+
+
+def _exact_depth_reader(bag: str):
+    """The simulator's exact-depth chunks next to a simulated bag, or None (real bags)."""
+    from pipeline.sim.export import DepthChunkReader
+
+    folder = Path(bag).parent / "depth"
+    return DepthChunkReader(folder) if (folder / "chunk_00000.npz").is_file() else None
+
+
+def _frames(seq: RosarioSequence, raw: DepthCache | None, filled: DepthCache | None, exact, every: int,
             max_frames: int | None) -> Iterator[ReplayFrame]:
     for frame in seq.stereo_frames(stop_index=max_frames):
         if frame.index % every:
             continue
         d_raw = raw.get(frame.index) if raw is not None else None
         d_fill = filled.get(frame.index) if filled is not None else None
+        truth = None
+        if exact is not None:
+            try:
+                if exact.stamp_ns(frame.index) == frame.stamp_ns:
+                    truth = exact.get(frame.index, "depth")
+            except (FileNotFoundError, IndexError, KeyError):
+                truth = None
         yield ReplayFrame(frame.index, frame.stamp_ns * 1e-9, frame.left_bgr,
                           d_raw.depth_m if d_raw is not None else None,
                           d_fill.depth_m if d_fill is not None else None,
-                          ~d_raw.valid if d_raw is not None else None)
+                          ~d_raw.valid if d_raw is not None else None, truth)
+
+
+def _classify(loaded: LoadedRun, raw: DepthCache | None, rig) -> None:
+    """Turn the run's msckf depth sources into replay feature classes (inpainted = raw hole at the pixel)."""
+    inpainted = loaded.record.get("variant") == "depth-inpainted"
+    out = {}
+    for i, (uv, tl, src) in loaded.raw_features.items():
+        valid = None
+        if inpainted and raw is not None:
+            d = raw.get(i)
+            valid = d.valid if d is not None else None
+        out[i] = (uv, tl, feature_classes(src, uv, valid, rig if valid is not None else None))
+    loaded.run.features = out
 
 
 def replay_runs(run_dirs: Sequence[Path], out: Path, every: int = 1, max_frames: int | None = None,
-                progress: bool = True) -> Path:
-    """Write the recording of ``run_dirs`` (one sequence) to ``out``; returns the path."""
-    loaded = [_load_run(Path(d)) for d in run_dirs]
-    bags = {info["options"].get("bag") for info, _, _ in loaded}
+                progress: bool = True, external: Sequence[str] = ()) -> Path:
+    """Write the recording of ``run_dirs`` (one sequence) and ``external`` specs to ``out``; returns the path."""
+    if every < 1:
+        raise AgrivioError(f"--every {every}: must be ≥ 1")
+    tracks = load_external(external)
+    loaded = [load_run(Path(d)) for d in run_dirs]
+    bags = {lr.options.get("bag") for lr in loaded}
     if len(bags) != 1 or None in bags:
         raise AgrivioError("replay: the run folders must come from the same sequence (one bag)")
-    info = loaded[0][0]["options"]
+    info = loaded[0].options
     seq = RosarioSequence(info["bag"], camchain=info.get("camchain"))
     rig = seq.calibration
     T_imu_cam = np.linalg.inv(rig.T_left_imu)
-    runs = []
-    for _, run, _ in loaded:
-        run.T_imu_cam = T_imu_cam
-        runs.append(run)
-    gt = next((g for _, _, g in loaded if g is not None), None)
+    for lr in loaded:
+        lr.run.T_body_cam = None if lr.run.kind == "odometry" else T_imu_cam
+    gt = next((lr.gt for lr in loaded if lr.gt is not None), None)
     cache_root = info.get("cache_root")
     raw = filled = None
     if cache_root:
         raw_store = DepthCache(cache_root, seq.identity(), DepthParams())
         raw = raw_store if raw_store.get(0) is not None else None  # complete, or the first --max-frames frames
-        methods = {i["record"].get("inpaint_method") for i, _, _ in loaded} - {None}
+        methods = {lr.record.get("inpaint_method") for lr in loaded} - {None}
         method = next(iter(methods)) if methods else info.get("inpaint_method", "paper")
         fill_store = DepthCache(cache_root, seq.identity(), InpaintParams(method=method))
         filled = fill_store if fill_store.get(0) is not None else None
+    for lr in loaded:
+        _classify(lr, raw, rig)
+    runs = [lr.run for lr in loaded]
+    if tracks:
+        if gt is None:
+            raise AgrivioError("replay --external: none of the run folders has a ground truth to evaluate against")
+        vio = next((lr for lr in loaded if lr.run.kind == "VIO"), loaded[0])
+        for track in tracks:
+            ext = external_run(track, gt, vio.eval_options)
+            ext.T_body_cam = T_imu_cam
+            runs.append(ext)
     n = seq.count("/stereo/left/image_raw") if max_frames is None else max_frames
-    frames = tqdm(_frames(seq, raw, filled, max(1, every), max_frames), total=n // max(1, every),
+    exact = _exact_depth_reader(info["bag"])
+    notes = [f"Images of every {every}-th frame (--every {every}); poses and metrics at full rate."] if every > 1 \
+        else []
+    frames = tqdm(_frames(seq, raw, filled, exact, every, max_frames), total=-(-n // every),
                   desc="replay", unit="frame", disable=not progress, leave=False)
-    return write_replay(out, runs, frames, gt, rig.left.K, rig.left.size)
+    gt_positions = gt.positions if gt is not None else None
+    return write_replay(out, runs, frames, gt_positions, rig.left.K, rig.left.size, notes=notes)
 
 
 def run(args: argparse.Namespace) -> int:
-    path = replay_runs(args.runs, args.out, args.every, args.max_frames)
+    path = replay_runs(args.runs, args.out, args.every, args.max_frames, external=args.external)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it with: rerun {path}")
     return 0
