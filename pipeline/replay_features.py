@@ -18,7 +18,7 @@ from pipeline import replay_layout as lay
 
 
 def feature_classes(source: np.ndarray, uv_raw: np.ndarray, raw_valid: np.ndarray | None = None,
-                    rig: StereoRig | None = None) -> np.ndarray:
+                    rig: StereoRig | None = None, measured: np.ndarray | None = None) -> np.ndarray:
     """(K,) replay feature classes (:data:`pipeline.replay_layout.FEATURE_CLASSES`) of K features.
 
     Args:
@@ -27,13 +27,17 @@ def feature_classes(source: np.ndarray, uv_raw: np.ndarray, raw_valid: np.ndarra
         raw_valid: (h, w) bool validity of the raw depth map of the frame (rectified left camera), for runs whose
             depth map was inpainted; None: every depth-map feature counts as measured.
         rig: the stereo rig (needed with ``raw_valid``).
+        measured: (K,) bool, the run's own per-feature "depth was measured" flags (``frames.npz:
+            feature_depth_measured``); when given it decides instead of ``raw_valid``.
     """
     src = np.asarray(source).astype(np.int64).reshape(-1)
     out = np.full(src.shape, lay.MONO, dtype=np.uint16)
     out[src == DepthSource.STEREO_MATCH] = lay.STEREO
     dm = src == DepthSource.DEPTH_MAP
     out[dm] = lay.MEASURED_DEPTH
-    if raw_valid is not None and dm.any():
+    if measured is not None:
+        out[dm & ~np.asarray(measured, dtype=bool).reshape(-1)] = lay.INPAINTED_DEPTH
+    elif raw_valid is not None and dm.any():
         if rig is None:
             raise ValueError("feature_classes: a raw validity mask needs the rig (raw → rectified pixels)")
         rect = rig.rectify_left_pixels(np.asarray(uv_raw, dtype=np.float64).reshape(-1, 2)[dm])

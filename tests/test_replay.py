@@ -168,6 +168,10 @@ def test_feature_classes_tell_inpainted_from_measured_depth(rosario_rig):
     valid[v - 1:v + 2, u - 1:u + 2] = False  # the second feature's pixel was a hole of the raw map
     got = feature_classes(src, uv, valid, rosario_rig)
     assert got.tolist() == [lay.MEASURED_DEPTH, lay.INPAINTED_DEPTH, lay.MONO, lay.STEREO]
+    # the run's own flags (frames.npz: feature_depth_measured) decide when the log has them
+    flags = np.array([False, True, False, False])
+    got = feature_classes(src, uv, valid, rosario_rig, measured=flags)
+    assert got.tolist() == [lay.INPAINTED_DEPTH, lay.MEASURED_DEPTH, lay.MONO, lay.STEREO]
 
 
 def test_fit_eye_frames_the_points():

@@ -60,7 +60,7 @@ class LoadedRun:
     eval_options: EvalOptions
     run: ReplayRun
     gt: Trajectory | None
-    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]
 
 
 def placed_like_ate(ev: Evaluation, est: Trajectory) -> tuple[Trajectory, Trajectory]:
@@ -114,18 +114,20 @@ def load_run(run_dir: Path) -> LoadedRun:
         run.gt_stamps_s, run.gt_errors_m = ev.association.est.stamps_s, ev.ate.errors_m
         recorded = rr_rec.metric("ate_rmse_m")
         run.ate_rmse_m = recorded if recorded is not None else float(ev.ate.trans.rmse)
-    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    raw_features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = {}
     frames_npz = run_dir / FRAMES_NAME
     if frames_npz.is_file():
         with np.load(frames_npz) as z:
             run.frame_stamps_s, run.n_features, run.frame_ms = z["stamps_s"], z["n_features"], z["frame_ms"]
             off = z["feature_offsets"]
             src_all = z["feature_source"]
+            measured_all = z["feature_depth_measured"] if "feature_depth_measured" in z.files else None
             run.n_with_depth = z["n_depth"] if "n_depth" in z.files else \
                 np.array([np.count_nonzero(src_all[off[i]:off[i + 1]]) for i in range(len(off) - 1)])
             for i in range(len(run.frame_stamps_s)):
                 sl = slice(off[i], off[i + 1])
-                raw_features[i] = (z["feature_uv"][sl], z["feature_track_length"][sl], src_all[sl])
+                raw_features[i] = (z["feature_uv"][sl], z["feature_track_length"][sl], src_all[sl],
+                                   measured_all[sl] if measured_all is not None else None)
     return LoadedRun(record, opts, eval_options, run, gt, raw_features)
 
 
@@ -161,22 +163,27 @@ def _frames(seq: RosarioSequence, raw: DepthCache | None, filled: DepthCache | N
                     truth = exact.get(frame.index, "depth")
             except (FileNotFoundError, IndexError, KeyError):
                 truth = None
-        yield ReplayFrame(frame.index, frame.stamp_ns * 1e-9, frame.left_bgr,
+        yield ReplayFrame(frame.index, frame.stamp_ns / 1e9, frame.left_bgr,
                           d_raw.depth_m if d_raw is not None else None,
                           d_fill.depth_m if d_fill is not None else None,
                           ~d_raw.valid if d_raw is not None else None, truth)
 
 
 def _classify(loaded: LoadedRun, raw: DepthCache | None, rig) -> None:
-    """Turn the run's msckf depth sources into replay feature classes (inpainted = raw hole at the pixel)."""
+    """Turn the run's msckf depth sources into replay feature classes. A depth-map feature of an inpainted run is
+    "inpainted" when the run logged its depth as not measured (``feature_depth_measured``, what the filter was
+    told); logs from before that field fall back to the raw cache's hole at the feature's pixel."""
     inpainted = loaded.record.get("variant") == "depth-inpainted"
     out = {}
-    for i, (uv, tl, src) in loaded.raw_features.items():
-        valid = None
-        if inpainted and raw is not None:
-            d = raw.get(i)
+    for i, (uv, tl, src, measured) in loaded.raw_features.items():
+        if not inpainted:
+            out[i] = (uv, tl, feature_classes(src, uv))
+        elif measured is not None:
+            out[i] = (uv, tl, feature_classes(src, uv, measured=measured))
+        else:
+            d = raw.get(i) if raw is not None else None
             valid = d.valid if d is not None else None
-        out[i] = (uv, tl, feature_classes(src, uv, valid, rig if valid is not None else None))
+            out[i] = (uv, tl, feature_classes(src, uv, valid, rig if valid is not None else None))
     loaded.run.features = out
 
 
