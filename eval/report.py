@@ -20,6 +20,7 @@ from eval.compare import AFTER, BEFORE, ComparisonRow, Table, compare_groups, ma
 from eval.evaluate import Evaluation
 from eval.plots import plot_ate_boxplot, plot_error_over_time, plot_rpe_vs_distance, plot_top_view
 from eval.records import RunRecord
+from eval.instrument import instrument_table
 from eval.statistics import GroupStats, summarize, variant_sort_key
 
 __all__ = ["Figure", "Report", "build_report", "rpe_series", "markdown_to_html"]
@@ -288,4 +289,7 @@ def build_report(records: Sequence[RunRecord],
             figures.append(Figure(f"{_slug(seq)}_rpe", f"{seq}: RPE translation RMSE vs travelled distance (mean ± "
                                   f"std over runs)", plot_rpe_vs_distance(series, title=f"{seq}: RPE vs distance")))
     versions = tuple(sorted({r.code_version for r in records if r.code_version}))
+    instrument = instrument_table(records)
+    if instrument:
+        sections = [*sections, ("Depth given to the filter and its χ² gate", instrument)]
     return Report(title, groups, rows, figures, inpaint_bench_md, tuple(notes), versions, tuple(sections), after)

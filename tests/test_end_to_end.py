@@ -74,6 +74,7 @@ def test_report_holds_table2_and_all_variants(runs_dir):
     for v in VARIANTS:
         assert v in md
     assert "<img" in html and "data:image/png;base64" in html
+    assert "Depth given to the filter and its χ² gate" in md and "| tiny | depth-inpainted[telea] | 2 |" in md
     manifest = json.loads((runs_dir / "tiny" / "sequence.json").read_text())
     assert 0.0 < manifest["depth"]["hole_ratio_median"] < 1.0
 
