@@ -54,6 +54,8 @@ class ReplayRun:
         frame_ms: (F,) VIO processing time per frame, milliseconds.
         features: frame index → ``(uv (K, 2) raw left pixels, track_length (K,), feature class (K,))`` with classes
             of :data:`pipeline.replay_layout.FEATURE_CLASSES`.
+        feature_sigma_rel: frame index → (K,) the depth σ_Z/Z stated to the filter for each of those features (NaN:
+            no depth or no stated σ); it sets the marker size (:func:`feature_radii`).
         kind: what the run is, for the legend (``VIO``, ``odometry``, ``external``).
     """
 
@@ -70,6 +72,7 @@ class ReplayRun:
     n_with_depth: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
     features: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
+    feature_sigma_rel: dict[int, np.ndarray] = field(default_factory=dict)
     kind: str = "VIO"
 
 
@@ -308,8 +311,9 @@ def _log_frame(rec: rr.RecordingStream, frame: ReplayFrame, runs: Sequence[Repla
         if feats is None:
             continue
         uv, _track_len, cls = feats
+        radii = feature_radii(run.feature_sigma_rel.get(int(frame.index)), len(uv))
         rec.log(f"camera/left/features/{ent}",
-                rr.Points2D(np.asarray(uv, dtype=np.float32), radii=4.0, class_ids=np.asarray(cls, dtype=np.uint16)))
+                rr.Points2D(np.asarray(uv, dtype=np.float32), radii=radii, class_ids=np.asarray(cls, dtype=np.uint16)))
     mm_range = (1000.0 * lay.DEPTH_RANGE_M[0], 1000.0 * lay.DEPTH_RANGE_M[1])
     for entity, depth in (("camera/depth_raw", frame.depth_raw), ("camera/depth_inpainted", frame.depth_inpainted)):
         if depth is not None:
@@ -323,6 +327,15 @@ def _log_frame(rec: rr.RecordingStream, frame: ReplayFrame, runs: Sequence[Repla
         err_mm = np.where(np.isfinite(err), np.maximum(depth_mm(err), 1), 0).astype(np.uint16)
         rec.log("camera/depth_error", _depth_png(err_mm, "inferno", (1000.0 * lay.ERROR_RANGE_M[0],
                                                                    1000.0 * lay.ERROR_RANGE_M[1])))
+
+
+def feature_radii(sigma_rel: np.ndarray | None, n: int) -> np.ndarray:
+    """(n,) marker radii in pixels: 3 px, plus 20 px per unit of the stated depth σ_Z/Z (capped at 30 %), so a
+    filled depth (σ ≈ 15 % of Z) is drawn about twice the size of a measured one (≈ 2 %)."""
+    if sigma_rel is None or len(sigma_rel) != n:
+        return np.full(n, 3.0, dtype=np.float32)
+    s = np.nan_to_num(np.asarray(sigma_rel, dtype=np.float64), nan=0.0)
+    return (3.0 + 20.0 * np.clip(s, 0.0, 0.3)).astype(np.float32)
 
 
 def _depth_png(mm: np.ndarray, colormap: str, range_mm: tuple[float, float]) -> rr.EncodedDepthImage:

@@ -196,3 +196,11 @@ def test_external_estimate_is_aligned_like_the_runs(tmp_path):
     assert ext.name == "external: openvins" and ext.kind == "external"
     assert np.allclose(ext.positions, lr.run.positions, atol=1e-9)
     assert ext.ate_rmse_m == pytest.approx(lr.run.ate_rmse_m, rel=1e-6)
+
+
+def test_feature_markers_grow_with_the_stated_depth_sigma():
+    from pipeline.replay import feature_radii
+
+    r = feature_radii(np.array([np.nan, 0.02, 0.15, 0.9]), 4)
+    assert r.tolist() == pytest.approx([3.0, 3.4, 6.0, 9.0])        # no depth, measured, filled, capped
+    assert feature_radii(None, 3).tolist() == [3.0, 3.0, 3.0]      # old logs: one size

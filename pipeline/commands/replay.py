@@ -122,12 +122,19 @@ def load_run(run_dir: Path) -> LoadedRun:
             off = z["feature_offsets"]
             src_all = z["feature_source"]
             measured_all = z["feature_depth_measured"] if "feature_depth_measured" in z.files else None
+            if "feature_depth_sigma_m" in z.files:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sigma_rel_all = z["feature_depth_sigma_m"] / z["feature_depth_m"]
+            else:
+                sigma_rel_all = None
             run.n_with_depth = z["n_depth"] if "n_depth" in z.files else \
                 np.array([np.count_nonzero(src_all[off[i]:off[i + 1]]) for i in range(len(off) - 1)])
             for i in range(len(run.frame_stamps_s)):
                 sl = slice(off[i], off[i + 1])
                 raw_features[i] = (z["feature_uv"][sl], z["feature_track_length"][sl], src_all[sl],
                                    measured_all[sl] if measured_all is not None else None)
+                if sigma_rel_all is not None:
+                    run.feature_sigma_rel[i] = sigma_rel_all[sl]
     return LoadedRun(record, opts, eval_options, run, gt, raw_features)
 
 
