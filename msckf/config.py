@@ -223,8 +223,8 @@ class MsckfConfig:
             raise bad("chi2_quantile", "must be in (0, 1)")
         if self.chi2_dof not in ("residual", "observations"):
             raise bad("chi2_dof", "must be 'residual' or 'observations'")
-        if self.update_method not in ("schur", "qr", "joseph"):
-            raise bad("update_method", "must be 'qr', 'joseph' or 'schur'")
+        if self.update_method not in ("schur", "qr"):
+            raise bad("update_method", "must be 'schur' or 'qr'")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every parameter (for run records); round-trips through :func:`load_config`."""

@@ -26,7 +26,7 @@ from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
 from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
-from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information, joseph_update_information,
+from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
                           find_redundant_clones, gating_chi2, downweight_features, whiten_track_drift, inject_correction, inverse_depth_sigma,
                           measurement_blocks, qr_update, schur_information)
 
@@ -448,17 +448,14 @@ class MsckfFilter:
                     out.append(b.subset(keep))
             accepted = out
         used = sum(len(b.pos) for b in accepted)
-        if c.update_method in ("schur", "joseph"):
+        if c.update_method == "schur":
             Lam = np.zeros((6 * n_cl, 6 * n_cl))
             eta = np.zeros(6 * n_cl)
             for b in accepted:
                 L_b, e_b, _ = schur_information(b, n_cl)
                 Lam += L_b
                 eta += e_b
-            if c.update_method == "schur":
-                dx, P_new = ekf_update_information(self.P, Lam, eta, sigma)
-            else:
-                dx, P_new = joseph_update_information(self.P, Lam, eta, sigma)
+            dx, P_new = ekf_update_information(self.P, Lam, eta, sigma)
         else:
             nmax = max(b.Hx.shape[1] for b in accepted)
             padded = [self._pad_batch(b, nmax, n_cl) for b in accepted]

@@ -40,7 +40,7 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
-           "schur_information", "joseph_update_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_update", "inject_correction",
+           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
 
@@ -388,41 +388,6 @@ def ekf_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigm
     P_new = P - P_c @ W @ P_c.T
     P_new = 0.5 * (P_new + P_new.T)
     return dx, P_new
-
-
-def joseph_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigma: float
-                              ) -> tuple[np.ndarray, np.ndarray]:
-    """The Joseph-form EKF update of :func:`qr_update`, from the feature-marginalised information (Λ, η) of
-    :func:`schur_information` instead of per-feature QR null spaces.
-
-    The update depends on the data only through ``HᵀH`` and ``Hᵀr``. With ``Λ̃ = Λ_cc/σ²`` on the clones that
-    carry information and ``M = Λ̃ P_cc + I`` (push-through identities): ``KH = P_:c M⁻¹Λ̃``,
-    ``δx = P_:c M⁻¹ η̃`` and ``K R Kᵀ = P_:c M⁻¹ M⁻¹Λ̃ P_c:``, so the covariance keeps the Joseph form
-    ``(I − KH) P (I − KH)ᵀ + K R Kᵀ`` (positive definite by construction, unlike the symmetric
-    :func:`ekf_update_information`) without a square root of Λ.
-
-    Returns:
-        (δx (n,), P⁺ (n, n)).
-    """
-    n = P.shape[0]
-    n_cl = (n - IMU_DIM) // 6
-    blk_active = np.any(np.abs(Lam).reshape(n_cl, 6, -1).max(axis=2) > 0, axis=1)
-    cols6 = np.flatnonzero(np.repeat(blk_active, 6))
-    if len(cols6) == 0:
-        return np.zeros(n), P
-    m = len(cols6)
-    L = Lam[np.ix_(cols6, cols6)] / (sigma * sigma)
-    e = eta[cols6] / (sigma * sigma)
-    gidx = IMU_DIM + cols6
-    P_c = P[:, gidx]                                                      # (n, m)
-    M = L @ P_c[gidx] + np.eye(m)
-    sol = np.linalg.solve(M, np.concatenate([L, e[:, None], np.eye(m)], axis=1))
-    W, y, Minv = sol[:, :m], sol[:, m], sol[:, m + 1:]
-    IKH = np.eye(n)
-    IKH[:, gidx] -= P_c @ W
-    KRK = P_c @ (Minv @ W) @ P_c.T
-    P_new = IKH @ P @ IKH.T + KRK
-    return P_c @ y, 0.5 * (P_new + P_new.T)
 
 
 def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -> tuple[np.ndarray, np.ndarray]:

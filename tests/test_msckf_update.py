@@ -150,12 +150,6 @@ def test_schur_update_equals_qr_null_space_update(running_filter, oc, depth_row)
     assert np.allclose(P_new, P_ref, rtol=1e-6, atol=1e-9 * np.abs(P_ref).max())
     gamma = gating_chi2(flt.P, b, sigma)
     assert np.allclose(gamma, gamma_ref, rtol=1e-7)
-    from msckf.update import joseph_update_information
-
-    dx_j, P_j = joseph_update_information(flt.P, Lam, eta, sigma)      # Schur compression, Joseph covariance
-    assert np.allclose(dx_j, dx_ref, rtol=1e-6, atol=1e-9 * np.abs(dx_ref).max())
-    assert np.allclose(P_j, P_ref, rtol=1e-6, atol=1e-9 * np.abs(P_ref).max())
-    assert np.linalg.eigvalsh(P_j).min() > -1e-12 * np.abs(P_ref).max()
 
 
 def test_filter_runs_identically_with_schur_and_qr_updates():
