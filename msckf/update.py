@@ -390,9 +390,60 @@ def ekf_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigm
     return dx, P_new
 
 
+def null_space_project(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every feature's residual projected on the left null space of its H_f, stacked (S-MSCKF's per-feature QR).
+
+    Batched over the k features: each feature's valid rows are moved to the front, and three Householder
+    reflections (the QR of its (m, 3) H_f) are applied to ``[H_x | r]``; rows 3 … m_valid − 1 are then the
+    projection (padding rows stay zero and are dropped). Features with ≤ 3 rows contribute nothing.
+
+    Returns:
+        (H_o (Σ(m_f − 3), 6·n_clones), r_o (Σ(m_f − 3),)).
+    """
+    k, n, R, _ = batch.Hx.shape
+    ncol = 6 * n_clones
+    m = n * R
+    rows = batch.rows.reshape(k, m)
+    n_valid = rows.sum(axis=1)
+    use = n_valid > 3
+    if not np.any(use):
+        return np.zeros((0, ncol)), np.zeros(0)
+    rows, n_valid = rows[use], n_valid[use]
+    k = len(rows)
+    order = np.argsort(~rows, axis=1, kind="stable")                     # valid rows first, in their order
+    fi = np.arange(k)[:, None]
+    A = np.where(rows[..., None], batch.Hf[use].reshape(k, m, 3), 0.0)[fi, order]          # (k, m, 3)
+    # [H_x | r] on the full clone columns (each observation's 6 columns at its clone's block)
+    B = np.zeros((k, m, ncol + 1))
+    Hx = np.where(rows[..., None], batch.Hx[use].reshape(k, m, 6), 0.0)
+    pos = np.repeat(batch.pos[use], R, axis=1)                           # (k, m) clone of each row
+    real = pos < n_clones
+    col = 6 * np.where(real, pos, 0)[..., None] + np.arange(6)
+    ff, rr = np.nonzero(real)
+    B[ff[:, None], rr[:, None], col[ff, rr]] = Hx[ff, rr]
+    B[..., ncol] = np.where(rows, batch.r[use].reshape(k, m), 0.0)
+    B = B[fi, order]
+    for j in range(3):
+        x = A[:, j:, j]
+        norm = np.linalg.norm(x, axis=1)
+        alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * norm
+        v = x.copy()
+        v[:, 0] -= alpha
+        vn = np.linalg.norm(v, axis=1)
+        ok = vn > 1e-300
+        v[ok] /= vn[ok, None]
+        v[~ok] = 0.0
+        A[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, A[:, j:])[:, None, :]
+        B[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, B[:, j:])[:, None, :]
+    keep = (np.arange(m)[None, :] >= 3) & (np.arange(m)[None, :] < n_valid[:, None])
+    out = B[keep]
+    return out[:, :ncol], out[:, ncol]
+
+
 def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -> tuple[np.ndarray, np.ndarray]:
-    """The production EKF update (S-MSCKF's): per-feature QR null space of H_f, stacked QR compression, Kalman
-    update in Joseph form (keeps P⁺ positive definite where the symmetric form lost it on depth runs).
+    """The production EKF update (S-MSCKF's): null-space projection of each feature (:func:`null_space_project`,
+    the QR of its H_f), stacked QR compression, Kalman update in Joseph form (keeps P⁺ positive definite where
+    the symmetric form lost it on depth runs).
 
     Args:
         P: (21 + 6C, 21 + 6C) covariance. batch: the gated features. sigma: measurement σ (normalised units).
@@ -400,29 +451,10 @@ def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -
     Returns:
         (δx (21 + 6C,), P⁺).
     """
-    k, n, R, _ = batch.Hx.shape
     ncol = 6 * n_clones
-    Hs, rs = [], []
-    for f in range(k):
-        rows = batch.rows[f].reshape(-1)
-        if int(rows.sum()) <= 3:
-            continue
-        Hx = np.zeros((n * R, ncol))
-        for j in range(n):
-            c = batch.pos[f, j]
-            if c < n_clones:
-                Hx[j * R:(j + 1) * R, 6 * c:6 * c + 6] = batch.Hx[f, j]
-        Hx = Hx[rows]
-        Hf = batch.Hf[f].reshape(-1, 3)[rows]
-        r = batch.r[f].reshape(-1)[rows]
-        Q, _ = np.linalg.qr(Hf, mode="complete")
-        Q2 = Q[:, 3:]
-        Hs.append(Q2.T @ Hx)
-        rs.append(Q2.T @ r)
-    if not Hs:
+    H, r = null_space_project(batch, n_clones)
+    if H.shape[0] == 0:
         return np.zeros(P.shape[0]), P
-    H = np.vstack(Hs)
-    r = np.concatenate(rs)
     if H.shape[0] > H.shape[1]:
         Raug = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")
         H, r = Raug[:ncol, :ncol], Raug[:ncol, ncol]
