@@ -4,7 +4,7 @@ Layout (under ``cache_root``, by default ``pipeline.paths.cache_dir()``)::
 
     depth/<bag identity>/<params key>/
         meta.json              params, bag identity, chunk size, and ``n_frames`` once the sequence is complete
-        chunk_000000.npz       frames [0, chunk_size): stamps, indices, PNG-encoded depth and grey images
+        chunk_000000.npz       frames [0, chunk_size): stamps, indices, hole ratios, PNG-encoded depth and grey images
 
 Depth is stored as 16-bit PNG of whole millimetres (0 = hole) and the rectified left grey image as 8-bit PNG
 (lossless, compact: PNG's row filters suit images far better than raw zlib). Chunk files are written atomically.
@@ -56,11 +56,12 @@ class _Encoded:
     index: int
     depth_png: np.ndarray
     grey_png: np.ndarray
+    hole_ratio: float = float("nan")  # NaN: a chunk written before hole ratios were stored
 
     @classmethod
     def of(cls, frame: DepthFrame) -> "_Encoded":
         return cls(int(frame.stamp_ns), int(frame.index), _png(encode_depth_mm(frame.depth_m)),
-                   _png(np.ascontiguousarray(frame.left_rect_grey)))
+                   _png(np.ascontiguousarray(frame.left_rect_grey)), frame.hole_ratio)
 
     def decode(self) -> DepthFrame:
         depth, valid = decode_depth_mm(_unpng(self.depth_png))
@@ -148,8 +149,10 @@ class DepthCache:
         if path.is_file():
             try:
                 with np.load(path) as z:
+                    holes = z["hole_ratios"].tolist() if "hole_ratios" in z.files else None
                     for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist())):
-                        frames[int(index)] = _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"])
+                        frames[int(index)] = _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"],
+                                                      float(holes[k]) if holes is not None else float("nan"))
             except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
                 # a truncated or garbled chunk (zip CRC-32 / structure check) is said once and recomputed
                 print(f"warning: {path}: corrupt depth-cache chunk ({type(exc).__name__}: {exc}); it is "
@@ -163,6 +166,7 @@ class DepthCache:
         arrays: dict[str, np.ndarray] = {
             "stamps_ns": np.array([f.stamp_ns for f in ordered], dtype=np.int64),
             "indices": np.array([f.index for f in ordered], dtype=np.int64),
+            "hole_ratios": np.array([f.hole_ratio for f in ordered], dtype=np.float64),
         }
         for k, f in enumerate(ordered):
             arrays[f"depth_{k}"] = f.depth_png
@@ -197,6 +201,19 @@ class DepthCache:
         for chunk in sorted(self._pending):
             self._write_chunk(chunk, self._pending[chunk])
         self._pending.clear()
+
+    def hole_ratios(self, stop: int) -> np.ndarray | None:
+        """(stop,) hole ratio of frames ``0 .. stop-1`` without decoding their images (chunks from before the
+        ratios were stored decode the depth PNG), or None when a frame is missing."""
+        out = np.empty(stop, dtype=np.float64)
+        for index in range(stop):
+            chunk = index // self.chunk_size
+            enc = self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+            if enc is None:
+                return None
+            h = enc.hole_ratio
+            out[index] = h if np.isfinite(h) else float(1.0 - decode_depth_mm(_unpng(enc.depth_png))[1].mean())
+        return out
 
     def iter(self, start: int = 0, stop: int | None = None) -> Iterator[DepthFrame]:
         """Cached frames ``start, start+1, …`` in order, ending at ``stop`` or at the first missing frame."""

@@ -127,5 +127,21 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
         store.mark_complete(n)
 
 
+def ensure_inpainted(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
+                     stats: dict[str, Any] | None = None, stop_index: int | None = None) -> None:
+    """Make sure frames ``0 .. stop_index-1`` (all without it) are in the inpainted cache, computing what is
+    missing; a complete, intact cache is checked without decoding any image (``stats['cached']`` counts it)."""
+    st = stats if stats is not None else {}
+    store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
+    n_total = store.n_frames
+    if n_total is not None:
+        stop = n_total if stop_index is None else min(n_total, stop_index)
+        if store.has_frames(stop, verify=True):
+            st.update(computed=0, cached=stop, compute_s=0.0, directory=str(store.directory))
+            return
+    for _ in inpainted_stream(sequence, params, cache_root, progress=progress, stats=st, stop_index=stop_index):
+        pass
+
+
 def params_summary(params: InpaintParams) -> dict[str, Any]:
     return {"method": params.method, "options": dict(params.options), "depth": asdict(params.depth)}

@@ -22,9 +22,9 @@ from pipeline.bag_reader import RosarioSequence
 from pipeline.batch import INPUT_KEY, Job, failed_record, run_jobs
 from pipeline.data_quality import check_stereo_pairing, sequence_quality
 from pipeline.depth import DepthParams
-from pipeline.depth_cache import depth_stream
+from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
-from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+from pipeline.inpaint_stage import InpaintParams, ensure_inpainted
 from pipeline.paths import ROSARIO_CAMCHAIN
 from pipeline.run_job import VARIANTS, RunInputs, lever_arms_from_tf, run_job
 from pipeline.run_key import code_fingerprint, input_key, job_key_parts, sequence_key_parts
@@ -126,10 +126,13 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     depth_stats: dict[str, Any] = {}
     if any(v.startswith("depth") for v in variants):
         t0 = time.perf_counter()
-        holes = []
-        for frame in depth_stream(seq, DepthParams(), cache=True, progress=progress, cache_root=cache_root,
-                                  stop_index=max_frames):
-            holes.append(frame.hole_ratio)
+        raw_store = DepthCache(cache_root, seq.identity(), DepthParams())
+        cached_holes = raw_store.hole_ratios(n_frames) if raw_store.has_frames(n_frames, verify=True) else None
+        if cached_holes is not None:  # a warm cache: no image is decoded here (the runs read what they need)
+            holes = cached_holes.tolist()
+        else:
+            holes = [frame.hole_ratio for frame in depth_stream(seq, DepthParams(), cache=True, progress=progress,
+                                                               cache_root=cache_root, stop_index=max_frames)]
         timings["depth_s"] = time.perf_counter() - t0
         if holes:
             import numpy as np
@@ -140,9 +143,8 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     if "depth-inpainted" in variants:
         t0 = time.perf_counter()
         stats: dict[str, Any] = {}
-        for _ in inpainted_stream(seq, InpaintParams(method=inpaint_method), cache_root, progress=progress,
-                                  stats=stats, stop_index=max_frames):
-            pass
+        ensure_inpainted(seq, InpaintParams(method=inpaint_method), cache_root, progress=progress, stats=stats,
+                         stop_index=max_frames)
         timings["inpaint_s"] = time.perf_counter() - t0
         depth_stats["inpainted_frames"] = {"computed": int(stats.get("computed", 0)),
                                            "cached": int(stats.get("cached", 0))}

@@ -80,3 +80,31 @@ def test_info_command(small_bag, capsys):
     assert main(["info", str(small_bag[0])]) == 0
     out = capsys.readouterr().out
     assert "/stereo/left/image_raw" in out and "tf_static" in out and "baseline          0.11872 m" in out
+
+
+def test_hole_ratios_are_read_without_decoding_images_and_old_chunks_still_work(tmp_path, monkeypatch):
+    """A warm run's preparation reads the hole ratio of every frame from the chunk index, decoding no PNG; a chunk
+    written before the ratios were stored falls back to decoding its depth."""
+    import pipeline.depth_cache as dc
+
+    cache = DepthCache(tmp_path, "bag-h", DepthParams(), chunk_size=2)
+    rng = np.random.default_rng(1)
+    frames = []
+    for i in range(4):
+        depth = rng.uniform(0.5, 40.0, (8, 10)).astype(np.float32)
+        depth[: i + 1, :4] = np.nan
+        frames.append(DepthFrame(100 + i, i, depth, np.isfinite(depth), np.zeros((8, 10), np.uint8)))
+        cache.put(frames[-1])
+    cache.flush()
+    decoded = []
+    real_unpng = dc._unpng
+    monkeypatch.setattr(dc, "_unpng", lambda buf: decoded.append(1) or real_unpng(buf))
+    fresh = DepthCache(tmp_path, "bag-h", DepthParams())
+    assert np.allclose(fresh.hole_ratios(4), [f.hole_ratio for f in frames]) and not decoded
+    assert fresh.hole_ratios(5) is None                               # frame 4 is not cached
+    chunk = fresh.directory / "chunk_000001.npz"                      # rewrite one chunk in the old format
+    with np.load(chunk) as z:
+        old = {k: z[k] for k in z.files if k != "hole_ratios"}
+    np.savez(chunk, **old)
+    older = DepthCache(tmp_path, "bag-h", DepthParams())
+    assert np.allclose(older.hole_ratios(4), [f.hole_ratio for f in frames]) and len(decoded) == 2
