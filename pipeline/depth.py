@@ -106,14 +106,15 @@ class DepthFrame:
         stamp_ns: left image stamp, ns.  index: stereo frame index in the sequence.
         depth_m: (H, W) float32 depth Z in metres, NaN in holes.
         valid: (H, W) bool, True where depth is measured (== ``isfinite(depth_m)``).
-        left_rect_grey: (H, W) uint8 rectified left grey image (what the VIO and the inpainting see).
+        left_rect_grey: (H, W) uint8 rectified left grey image (what the inpainting sees), or None for a frame
+            read from the cache without it (``DepthCache.get(index, grey=False)``).
     """
 
     stamp_ns: int
     index: int
     depth_m: np.ndarray
     valid: np.ndarray
-    left_rect_grey: np.ndarray
+    left_rect_grey: np.ndarray | None
 
     @property
     def hole_ratio(self) -> float:

@@ -63,9 +63,9 @@ class _Encoded:
         return cls(int(frame.stamp_ns), int(frame.index), _png(encode_depth_mm(frame.depth_m)),
                    _png(np.ascontiguousarray(frame.left_rect_grey)), frame.hole_ratio)
 
-    def decode(self) -> DepthFrame:
+    def decode(self, grey: bool = True) -> DepthFrame:
         depth, valid = decode_depth_mm(_unpng(self.depth_png))
-        return DepthFrame(self.stamp_ns, self.index, depth, valid, _unpng(self.grey_png))
+        return DepthFrame(self.stamp_ns, self.index, depth, valid, _unpng(self.grey_png) if grey else None)
 
 
 class DepthCache:
@@ -180,11 +180,12 @@ class DepthCache:
         self._loaded = (chunk, dict(frames))
 
     # ---- public API --------------------------------------------------------------------------------------------
-    def get(self, index: int) -> DepthFrame | None:
-        """The cached frame ``index`` (depth in whole millimetres) or None."""
+    def get(self, index: int, grey: bool = True) -> DepthFrame | None:
+        """The cached frame ``index`` (depth in whole millimetres) or None. ``grey=False`` skips decoding the
+        rectified grey image (``left_rect_grey`` is then None): the VIO reads only the depth."""
         chunk = index // self.chunk_size
         enc = self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
-        return enc.decode() if enc is not None else None
+        return enc.decode(grey) if enc is not None else None
 
     def put(self, frame: DepthFrame) -> None:
         """Store a frame (depth rounded to millimetres). A chunk is written once all its frames are present."""

@@ -231,7 +231,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
             if variant == "stereo":
                 pose = vio.add_frame(t_img, left, right_grey=_grey(frame.right_bgr))
             else:
-                d = depth_store.get(frame.index)
+                d = depth_store.get(frame.index, grey=False)
                 if d is None or d.stamp_ns != frame.stamp_ns:  # joined by stamp (integer ns), never by index only
                     raise AgrivioError(f"{seq.path}: depth cache has no frame {frame.index} at stamp "
                                        f"{frame.stamp_ns} ns" + (f" (it holds {d.stamp_ns} ns)" if d else ""))
@@ -239,7 +239,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                     sigma = sigma_model.raw_sigma(d.depth_m, d.valid)
                     measured = d.valid
                 else:
-                    r = raw_store.get(frame.index)
+                    r = raw_store.get(frame.index, grey=False)
                     if r is None or r.stamp_ns != frame.stamp_ns:
                         raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
                                            f"{frame.stamp_ns} ns")
