@@ -8,12 +8,14 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
    support was known.
 2. **Coarsest level**: filled completely by ``paper-greedy``'s priority-ordered multi-scale block search (fill
    front, scale-adaptive priority P = max_L λ^(L) C^(L) D^(L) 1_match(L) with λ^(L) = 2^−L, anisotropic-gradient
-   similarity, 1_match fall-back, fusion) on 1/64 of the pixels, where the order of filling matters.
+   similarity, 1_match fall-back, fusion) on 1/64 of the pixels, where the order of filling matters; its block
+   search is the compiled ``c2f_kernels.block_search`` (the same Sim and the same blocks as
+   ``block_search.search_level``, without the per-block Python calls).
 3. **Each finer level L** (L_max−1 … 0): the hole is initialised by bilinear upsampling of the coarser result, then
    ``passes[L]`` parallel passes refine *all* hole blocks at once:
 
    - features: the 8 directional anisotropic-gradient means × 3 templates (``inpaint.gradient``, box filters) of the
-     current estimate, computed once per pass;
+     current estimate, computed once per pass (``gradient.anisotropic_channels_fast``, bit-identical);
    - NNF search (``c2f_kernels.nnf_search``, compiled): PatchMatch propagation + random search over a grid of
      blocks (``block`` at level 0, smaller at coarser levels, ``overlap`` pixels of overlap) that covers the hole;
      sources are blocks lying wholly in the known region of that level; initialised from the coarser level's
@@ -25,9 +27,11 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
      measured pixels (estimated ones weigh ``w_anchor``, so a block without measured pixels keeps the estimate's
      mean); quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
      the levels that found any block (fall-back), else the current estimate;
-   - fusion of the candidates (``fusion``): the PLIP-softmax network (one batched call per pass; its own weights,
-     trained on the candidates of this formulation, ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the
-     best block;
+   - fusion of the candidates (``fusion``): the PLIP-softmax network (one batched call per pass, in its inference
+     form ``FusionNet.forward_valid``; its own weights, trained on the candidates of this formulation,
+     ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the best block. With the network, a block whose
+     valid candidates agree to ``FUSE_TOL`` at every hole pixel (or that has a single one) takes the softmax mean:
+     the network's output is clamped to the candidates' range, so that changes no value by more than the tolerance;
    - paste: overlap averaging with a tent window into hole pixels only, clipped to the range of the measured
      values.
 
@@ -57,7 +61,7 @@ ENERGY_EPS = 1e-4
 Q_CLIP = 10.0
 MIN_COARSE_SIDE = 24  # the coarsest level keeps at least this many pixels on its short side
 NET_CHUNK = 128  # blocks per network forward call (measured fastest of 48/128/512)
-NATIVE_CONV = False  # oneDNN convolutions: 3–6 % less CPU per frame than torch's native ones with forward_valid (measured)
+NATIVE_CONV = False  # oneDNN convolutions: 3–6 % less CPU per frame than torch's native ones (measured)
 FUSE_TOL = 1e-3  # relative candidate spread below which a block's fusion is determined (see ``_fuse``)
 
 
