@@ -11,11 +11,15 @@ Three parts, every method measured in the same run with Telea as the base of the
    depth of the three Rosario-like presets with their real StereoSGBM invalid masks (45–58 % holes), ``--frames``
    of them (default 12, 4 per preset). Median ms per frame; hole RMSE / PSNR / SSIM (``eval.depth_metrics``, peak
    20 m, ground truth ≤ 20 m) averaged per preset and over all frames.
-3. ``--sources``: quality per synthetic source (procedural fields, procedural object scenes with boxes, poles and
-   plates), random masks 15–40 % and stereo-occlusion masks.
+3. ``--sources``: quality per synthetic source — procedural fields, procedural object scenes (boxes, poles,
+   plates), procedural rooms / corridors (planes, steps, door openings, posts), and ``stereo-noise`` (the three kinds
+   in turn, with the known pixels measured as a stereo matcher would: sub-pixel disparity noise and 1/16 px
+   quantisation, ``inpaint.synthetic.stereo_noise``; scored against the exact depth) — random masks 15–40 % and
+   stereo-occlusion masks; other seeds than training.
 
-Each method call is timed on one thread of work (the torch calls of ``paper`` pin one thread); machine load is not
-controlled: compare ratios measured in the same run, not absolute times across runs.
+Each method call is timed on one thread of work (the torch calls of ``paper`` pin one thread) as wall-clock time and
+as the process's CPU time (``time.process_time``: all threads, less sensitive to other jobs on a shared machine);
+machine load is not controlled: compare ratios measured in the same run, not absolute times across runs.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from eval.depth_metrics import depth_metrics  # noqa: E402
 from inpaint import inpaint  # noqa: E402
 from inpaint.masks import occlusion_mask, random_mask  # noqa: E402
-from inpaint.synthetic import field_depth, object_depth  # noqa: E402
+from inpaint.synthetic import field_depth, object_depth, room_depth, stereo_noise  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 
@@ -46,10 +50,11 @@ def _parse_methods(spec: str) -> list[str]:
     return [m for m in spec.split(",") if m]
 
 
-def _call(method: str, depth: np.ndarray, mask: np.ndarray, guide=None) -> tuple[np.ndarray, float]:
-    t0 = time.perf_counter()
+def _call(method: str, depth: np.ndarray, mask: np.ndarray, guide=None) -> tuple[np.ndarray, float, float]:
+    """(output, wall seconds, CPU seconds of the process)."""
+    t0, c0 = time.perf_counter(), time.process_time()
     out = inpaint(depth, mask, guide, method=method)
-    return out, time.perf_counter() - t0
+    return out, time.perf_counter() - t0, time.process_time() - c0
 
 
 def speed_small_holes(methods: list[str], n_frames: int, repeats: int) -> dict:
@@ -60,12 +65,16 @@ def speed_small_holes(methods: list[str], n_frames: int, repeats: int) -> dict:
         mask = random_mask(f.depth.shape, ratios[i % 3], "mixed" if i % 2 == 0 else "blobs", seed=600 + i)
         cases.append((np.where(mask, np.nan, f.depth).astype(np.float32), mask))
     times: dict[str, list[float]] = {m: [] for m in methods}
+    cpu: dict[str, list[float]] = {m: [] for m in methods}
     for depth, mask in cases:
         for _ in range(repeats):
             for m in methods:
-                times[m].append(_call(m, depth, mask)[1])
-    return {"hole_ratios": [float(m.mean()) for _, m in cases], "runs_s": times,
-            "median_ms": {m: 1000 * float(np.median(v)) for m, v in times.items()}}
+                _, wall, c = _call(m, depth, mask)
+                times[m].append(wall)
+                cpu[m].append(c)
+    return {"hole_ratios": [float(m.mean()) for _, m in cases], "runs_s": times, "cpu_s": cpu,
+            "median_ms": {m: 1000 * float(np.median(v)) for m, v in times.items()},
+            "median_cpu_ms": {m: 1000 * float(np.median(v)) for m, v in cpu.items()}}
 
 
 def _metrics(out, gt, valid, mask) -> dict:
@@ -78,20 +87,22 @@ def sim_part(methods: list[str], n_frames: int) -> dict:
     from pipeline.inpaint_bench import sim_frames
 
     frames = sim_frames(n_frames, seed=0)
-    per: dict[str, dict] = {m: {"seconds": [], "frames": []} for m in methods}
+    per: dict[str, dict] = {m: {"seconds": [], "cpu_seconds": [], "frames": []} for m in methods}
     for fr in frames:
         raw = np.where(fr.mask, np.nan, fr.depth_gt).astype(np.float32)
         preset = fr.source.split()[1]
         for m in methods:
-            out, sec = _call(m, raw, fr.mask, fr.guide)
+            out, sec, c = _call(m, raw, fr.mask, fr.guide)
             per[m]["seconds"].append(sec)
+            per[m]["cpu_seconds"].append(c)
             per[m]["frames"].append(dict(_metrics(out, fr.depth_gt, fr.valid, fr.mask), preset=preset,
                                          name=fr.name, hole_ratio=float(fr.mask.mean())))
     summary = {}
     presets = sorted({f["preset"] for f in per[methods[0]]["frames"]})
     for m in methods:
         rows = per[m]["frames"]
-        s = {"median_ms": 1000 * float(np.median(per[m]["seconds"]))}
+        s = {"median_ms": 1000 * float(np.median(per[m]["seconds"])),
+             "median_cpu_ms": 1000 * float(np.median(per[m]["cpu_seconds"]))}
         for key in ("rmse", "psnr", "ssim"):
             s[key] = float(np.mean([r[key] for r in rows]))
             for p in presets:
@@ -101,11 +112,15 @@ def sim_part(methods: list[str], n_frames: int) -> dict:
             "per_frame": per}
 
 
+SOURCES = {"field": lambda s: field_depth(376, 672, seed=700 + s),
+           "objects": lambda s: object_depth(376, 672, seed=800 + s),
+           "room": lambda s: room_depth(376, 672, seed=1700 + s),
+           "stereo-noise": lambda s: (field_depth, object_depth, room_depth)[s % 3](376, 672, seed=1900 + s)}
+
+
 def sources_part(methods: list[str], n_per_source: int) -> dict:
-    gens = {"field": lambda s: field_depth(376, 672, seed=700 + s), "objects": lambda s: object_depth(376, 672,
-                                                                                                    seed=800 + s)}
     out: dict[str, dict] = {}
-    for src, gen in gens.items():
+    for src, gen in SOURCES.items():
         rows: dict[str, list] = {m: [] for m in methods}
         for i in range(n_per_source):
             f = gen(i)
@@ -114,12 +129,14 @@ def sources_part(methods: list[str], n_per_source: int) -> dict:
             else:
                 mask = random_mask(f.depth.shape, (0.15, 0.40)[i % 3], "mixed" if i % 2 == 0 else "blobs",
                                    seed=900 + i)
-            raw = np.where(mask, np.nan, f.depth).astype(np.float32)
+            measured = stereo_noise(f.depth, seed=2000 + i) if src == "stereo-noise" else f.depth
+            raw = np.where(mask, np.nan, measured).astype(np.float32)
             gt = np.where(f.valid, f.depth, np.nan).astype(np.float32)
             for m in methods:
-                res, sec = _call(m, raw, mask)
-                rows[m].append(dict(_metrics(res, gt, f.valid, mask), seconds=sec))
-        out[src] = {m: {k: float(np.mean([r[k] for r in v])) for k in ("rmse", "psnr", "ssim", "seconds")}
+                res, sec, c = _call(m, raw, mask)
+                rows[m].append(dict(_metrics(res, gt, f.valid, mask), seconds=sec, cpu_seconds=c))
+        out[src] = {m: {k: float(np.mean([r[k] for r in v])) for k in ("rmse", "psnr", "ssim", "seconds",
+                                                                        "cpu_seconds")}
                     for m, v in rows.items()}
     return out
 
@@ -145,27 +162,29 @@ def main(argv: list[str] | None = None) -> int:
     result: dict = {"methods": methods, "cpu_count": os.cpu_count(), "platform": platform.platform()}
     small = speed_small_holes(methods, args.speed_frames, args.repeats)
     result["small_holes"] = small
-    base = small["median_ms"]["telea"]
+    base, cbase = small["median_ms"]["telea"], small["median_cpu_ms"]["telea"]
     print(f"\n15–25 % holes, 672×376, {args.speed_frames} procedural frames × {args.repeats} repeats")
-    print(f"{'method':14s} {'median ms':>10s} {'× Telea':>8s}")
+    print(f"{'method':14s} {'median ms':>10s} {'× Telea':>8s} {'CPU ms':>8s} {'× Telea':>8s}")
     for m in methods:
-        print(f"{m:14s} {small['median_ms'][m]:10.1f} {small['median_ms'][m] / base:8.2f}")
+        print(f"{m:14s} {small['median_ms'][m]:10.1f} {small['median_ms'][m] / base:8.2f} "
+              f"{small['median_cpu_ms'][m]:8.1f} {small['median_cpu_ms'][m] / cbase:8.2f}")
     if not args.no_sim:
         sim = sim_part(methods, args.frames)
         result["sim"] = sim
         s = sim["summary"]
-        base = s["telea"]["median_ms"]
+        base, cbase = s["telea"]["median_ms"], s["telea"]["median_cpu_ms"]
         hr = sim["hole_ratios"]
         print(f"\nsimulator frames, real SGBM masks ({len(hr)} frames, holes {100 * min(hr):.0f}–{100 * max(hr):.0f} %, "
               f"median {100 * float(np.median(hr)):.0f} %); hole metrics, GT ≤ {MAX_DEPTH:g} m, PSNR peak {PEAK:g} m")
-        head = f"{'method':14s} {'median ms':>10s} {'× Telea':>8s} {'RMSE m':>8s} {'PSNR':>7s} {'SSIM':>7s}"
+        head = (f"{'method':14s} {'median ms':>10s} {'× Telea':>8s} {'CPU ms':>8s} {'× Telea':>8s} {'RMSE m':>8s} "
+                f"{'PSNR':>7s} {'SSIM':>7s}")
         for p in sim["presets"]:
             head += f" | {p[-2:]}: {'RMSE':>6s} {'PSNR':>6s} {'SSIM':>6s}"
         print(head)
         for m in methods:
             r = s[m]
-            line = (f"{m:14s} {r['median_ms']:10.1f} {r['median_ms'] / base:8.2f} {r['rmse']:8.3f} {r['psnr']:7.2f} "
-                    f"{r['ssim']:7.4f}")
+            line = (f"{m:14s} {r['median_ms']:10.1f} {r['median_ms'] / base:8.2f} {r['median_cpu_ms']:8.1f} "
+                    f"{r['median_cpu_ms'] / cbase:8.2f} {r['rmse']:8.3f} {r['psnr']:7.2f} {r['ssim']:7.4f}")
             for p in sim["presets"]:
                 line += f" |     {r['rmse:' + p]:6.3f} {r['psnr:' + p]:6.2f} {r['ssim:' + p]:6.4f}"
             print(line)
@@ -174,10 +193,11 @@ def main(argv: list[str] | None = None) -> int:
         result["sources"] = src
         for name, tab in src.items():
             print(f"\nsynthetic source '{name}' ({args.source_frames} frames, masks 15/40 % random + stereo occlusion)")
-            print(f"{'method':14s} {'mean s':>8s} {'RMSE m':>8s} {'PSNR':>7s} {'SSIM':>7s}")
+            print(f"{'method':14s} {'mean s':>8s} {'CPU s':>8s} {'RMSE m':>8s} {'PSNR':>7s} {'SSIM':>7s}")
             for m in methods:
                 r = tab[m]
-                print(f"{m:14s} {r['seconds']:8.3f} {r['rmse']:8.3f} {r['psnr']:7.2f} {r['ssim']:7.4f}")
+                print(f"{m:14s} {r['seconds']:8.3f} {r['cpu_seconds']:8.3f} {r['rmse']:8.3f} {r['psnr']:7.2f} "
+                      f"{r['ssim']:7.4f}")
     result["load_avg"] = os.getloadavg()
     write_json_atomic(args.out, result)
     print(f"\nwritten: {args.out}")

@@ -61,7 +61,6 @@ def nnf_search(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.
     (forward: propagate from left/up; backward: right/down), each followed by a random search at radii
     rmax, rmax/2, …, 1 around the current best. Outputs ``best`` K×2 (−1 if no source), ``sim`` K, ``energy`` K.
     """
-    hh, ww = source_ok.shape
     k_n = centres.shape[0]
     c_n = feat.shape[2]
     inv_c = 1.0 / c_n
@@ -97,16 +96,8 @@ def nnf_search(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.
         best[k, 1] = -1
         sim[k] = np.inf
         for m in range(init.shape[1]):
-            sy, sx = init[k, m, 0], init[k, m, 1]
-            if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
-                continue
-            if sy == best[k, 0] and sx == best[k, 1]:
-                continue
-            v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, s, mu, sim[k])
-            if v < sim[k]:
-                sim[k] = v
-                best[k, 0] = sy
-                best[k, 1] = sx
+            _try(feat, dep, wt, source_ok, k, ty, tx, init[k, m, 0], init[k, m, 1], h, w_depth, inv_c, s, mu, best,
+                 sim)
     for it in range(iters):
         fwd = it % 2 == 0
         for kk in range(k_n):
@@ -116,17 +107,8 @@ def nnf_search(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.
                 n = nbr[k, j] if fwd else nbr[k, 2 + j]
                 if n < 0 or best[n, 0] < 0:
                     continue
-                sy = ty + best[n, 0] - centres[n, 0]
-                sx = tx + best[n, 1] - centres[n, 1]
-                if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
-                    continue
-                if sy == best[k, 0] and sx == best[k, 1]:
-                    continue
-                v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, wsums[k], mus[k], sim[k])
-                if v < sim[k]:
-                    sim[k] = v
-                    best[k, 0] = sy
-                    best[k, 1] = sx
+                _try(feat, dep, wt, source_ok, k, ty, tx, ty + best[n, 0] - centres[n, 0],
+                     tx + best[n, 1] - centres[n, 1], h, w_depth, inv_c, wsums[k], mus[k], best, sim)
             if best[k, 0] < 0:
                 continue
             r = rmax
@@ -135,16 +117,27 @@ def nnf_search(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.
                 ry = int((state >> np.uint64(33)) % np.uint64(2 * r + 1)) - r
                 state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
                 rx = int((state >> np.uint64(33)) % np.uint64(2 * r + 1)) - r
-                sy = best[k, 0] + ry
-                sx = best[k, 1] + rx
+                _try(feat, dep, wt, source_ok, k, ty, tx, best[k, 0] + ry, best[k, 1] + rx, h, w_depth, inv_c,
+                     wsums[k], mus[k], best, sim)
                 r //= 2
-                if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
-                    continue
-                v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, wsums[k], mus[k], sim[k])
-                if v < sim[k]:
-                    sim[k] = v
-                    best[k, 0] = sy
-                    best[k, 1] = sx
+
+
+@numba.njit(**NJIT)
+def _try(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, source_ok: np.ndarray, k: int, ty: int, tx: int,
+         sy: int, sx: int, h: int, w_depth: float, inv_c: float, wsum: float, mu_t: float, best: np.ndarray,
+         sim: np.ndarray) -> None:
+    """Try source centre (sy, sx) for target block k: skipped when outside the image or the source region or
+    already the best; taken when its Sim is lower than the best so far."""
+    hh, ww = source_ok.shape
+    if sy < 0 or sy >= hh or sx < 0 or sx >= ww or not source_ok[sy, sx]:
+        return
+    if sy == best[k, 0] and sx == best[k, 1]:
+        return
+    v = _sim(feat, dep, wt, ty, tx, sy, sx, h, w_depth, inv_c, wsum, mu_t, sim[k])
+    if v < sim[k]:
+        sim[k] = v
+        best[k, 0] = sy
+        best[k, 1] = sx
 
 
 @numba.njit(**NJIT)
@@ -187,3 +180,121 @@ def paste_blocks(blocks: np.ndarray, centres: np.ndarray, h: int, window: np.nda
                 w = window[dy + h, dx + h]
                 acc[cy + dy, cx + dx] += w * blocks[k, dy + h, dx + h]
                 wacc[cy + dy, cx + dx] += w
+
+
+@numba.njit(**NJIT)
+def directional_means(nsum: np.ndarray, dsum: np.ndarray, idx: np.ndarray, oy: np.ndarray, ox: np.ndarray,
+                      r: int, h: int, w: int, out: np.ndarray) -> None:
+    """The anisotropic-gradient channels of ``inpaint.gradient.gradient_channels`` from precomputed region sums,
+    in one pass over the pixels with the same float32 operations in the same order (bit-identical result).
+
+    ``nsum`` / ``dsum``: U×(h+2r)×(w+2r) float32, Σ K·I and Σ K of each distinct region shape (top-left anchored,
+    zero-padded image); region t·9 + j of template t (j = 0 centre, 1..8 directions) reads shape ``idx[t·9+j]``
+    at offset (``oy``, ``ox``). ``out``: h×w×8 float32."""
+    eps = np.float32(1e-6)
+    third = np.float32(1.0 / 3.0)
+    n_t = idx.shape[0] // 9
+    acc = np.zeros((8, w), np.float32)
+    mc = np.zeros(w, np.float32)
+    mce = np.zeros(w, np.float32)
+    for y in range(h):
+        acc[:] = np.float32(0.0)
+        for t in range(n_t):
+            k = t * 9
+            nrow = nsum[idx[k], r + y + oy[k], r + ox[k]:r + ox[k] + w]
+            drow = dsum[idx[k], r + y + oy[k], r + ox[k]:r + ox[k] + w]
+            for x in range(w):
+                mc[x] = nrow[x] / (drow[x] + eps)
+                mce[x] = mc[x] * eps
+            for i in range(8):
+                kk = k + 1 + i
+                nrow = nsum[idx[kk], r + y + oy[kk], r + ox[kk]:r + ox[kk] + w]
+                drow = dsum[idx[kk], r + y + oy[kk], r + ox[kk]:r + ox[kk] + w]
+                for x in range(w):
+                    acc[i, x] = acc[i, x] + (nrow[x] + mce[x]) / (drow[x] + eps)
+            for i in range(8):
+                for x in range(w):
+                    acc[i, x] = acc[i, x] - mc[x]
+        c_d = dsum[idx[0], r + y + oy[0], r + ox[0]:r + ox[0] + w]
+        for x in range(w):
+            unknown = c_d[x] <= np.float32(1e-3)
+            for i in range(8):
+                out[y, x, i] = np.float32(0.0) if unknown else acc[i, x] * third
+
+
+@numba.njit(**NJIT)
+def block_search(fd: np.ndarray, known: np.ndarray, source_ok: np.ndarray, centres: np.ndarray, t: int, r: int,
+                 w_depth: float, best: np.ndarray, sim: np.ndarray, energy: np.ndarray) -> None:
+    """Exhaustive masked block search of ``inpaint.block_search.search_level`` (the same Sim, evaluated directly
+    in float64 instead of by correlation; results equal up to rounding), compiled, for the coarsest-level greedy
+    fill of ``paper``.
+
+    ``fd`` padded H×W×(C+1) float32 (C feature channels, then depth), ``known`` / ``source_ok`` padded H×W bool,
+    ``centres`` K×2 int (padded (y, x)), template (2t+1)², window ± ``r``. For each target: the first candidate
+    centre (row-major in the window) of least Sim = 1/(n·C) Σ_u M Σ_c (G^t − G^c)² + w_d/n Σ_u M (z − z̄)²
+    (z = D^c − (D^t − μ^t)); a candidate is dropped as soon as its gradient part alone exceeds the best so far
+    (a lower bound: both parts are sums of non-negative terms over rows). Outputs ``best`` K×2 (−1: none),
+    ``sim`` K (inf: none), ``energy`` K (Sim of a flat candidate; 0 when there is none)."""
+    c_n = fd.shape[2] - 1
+    for k in range(centres.shape[0]):
+        cy, cx = centres[k, 0], centres[k, 1]
+        best[k, 0] = -1
+        best[k, 1] = -1
+        sim[k] = np.inf
+        n = 0.0
+        sd = 0.0
+        sdd = 0.0
+        eg = 0.0
+        for dy in range(-t, t + 1):
+            for dx in range(-t, t + 1):
+                if known[cy + dy, cx + dx]:
+                    n += 1.0
+                    v = fd[cy + dy, cx + dx, c_n]
+                    sd += v
+                    sdd += v * v
+                    for c in range(c_n):
+                        eg += fd[cy + dy, cx + dx, c] ** 2
+        if n < 1.0:
+            energy[k] = 0.0
+            continue
+        mu = sd / n
+        a = 1.0 / (n * c_n)
+        b = w_depth / n
+        energy[k] = a * eg + b * max(sdd - sd * mu, 0.0)
+        bv = np.inf
+        by = -1
+        bx = -1
+        for sy in range(cy - r, cy + r + 1):
+            for sx in range(cx - r, cx + r + 1):
+                if not source_ok[sy, sx]:
+                    continue
+                g = 0.0
+                sz = 0.0
+                szz = 0.0
+                dropped = False
+                for dy in range(-t, t + 1):
+                    for dx in range(-t, t + 1):
+                        if not known[cy + dy, cx + dx]:
+                            continue
+                        for c in range(c_n):
+                            d = fd[cy + dy, cx + dx, c] - fd[sy + dy, sx + dx, c]
+                            g += d * d
+                        z = fd[sy + dy, sx + dx, c_n] - (fd[cy + dy, cx + dx, c_n] - mu)
+                        sz += z
+                        szz += z * z
+                    if a * g >= bv:
+                        dropped = True
+                        break
+                if dropped:
+                    continue
+                v = a * g + b * max(szz - sz * sz / n, 0.0)
+                if v < bv:
+                    bv = v
+                    by = sy
+                    bx = sx
+        if by >= 0:
+            best[k, 0] = by
+            best[k, 1] = bx
+            sim[k] = bv
+        else:
+            energy[k] = 0.0  # as ``search_level``: no candidate, no energy

@@ -26,7 +26,7 @@ weights (1, 2, 1); its feature channels are (gx, gy).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 
 import cv2
 import numpy as np
@@ -218,6 +218,55 @@ def gradient_channels(image: np.ndarray, known: np.ndarray | None = None, kind: 
     acc *= np.float32(1.0 / 3.0)
     acc[:, region_sums(templates(kind)[0][0])[1] <= 1e-3] = 0.0  # centre unknown: no gradient
     return np.ascontiguousarray(acc.transpose(1, 2, 0))
+
+
+@cache
+def _region_table(kind: str) -> tuple[tuple[Region, ...], np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct region shapes of ``kind``'s templates and, per region (template-major), its shape index and
+    offset (oy, ox): the layout ``c2f_kernels.directional_means`` reads."""
+    shapes: list[Region] = []
+    keys: dict[tuple, int] = {}
+    idx, oy, ox = [], [], []
+    for tpl in templates(kind):
+        for reg in tpl:
+            key = (reg.weights.shape, reg.weights.tobytes())
+            if key not in keys:
+                keys[key] = len(shapes)
+                shapes.append(reg)
+            idx.append(keys[key])
+            oy.append(reg.oy)
+            ox.append(reg.ox)
+    return tuple(shapes), np.array(idx, np.intp), np.array(oy, np.intp), np.array(ox, np.intp)
+
+
+@lru_cache(maxsize=8)
+def _known_sums(h: int, w: int) -> np.ndarray:
+    """Σ K of every distinct anisotropic region shape on an all-known h×w image (zero-padded), U×(h+2r)×(w+2r)."""
+    r = template_radius("anisotropic")
+    den_pad = cv2.copyMakeBorder(np.ones((h, w), np.float32), r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    out = np.stack([_region_filter(den_pad, reg) for reg in _region_table("anisotropic")[0]])
+    out.flags.writeable = False
+    return out
+
+
+def anisotropic_channels_fast(image: np.ndarray) -> np.ndarray:
+    """``gradient_channels(image, None, "anisotropic")`` (every pixel known), bit-identical, faster: the distinct
+    region sums are filtered once and the per-pixel means and differences run in one compiled loop
+    (``c2f_kernels.directional_means``) instead of ~100 whole-image numpy operations. H×W float32 → H×W×8."""
+    from inpaint.c2f_kernels import directional_means
+
+    img = np.asarray(image, np.float32)
+    r = template_radius("anisotropic")
+    h, w = img.shape
+    num_pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    shapes, idx, oy, ox = _region_table("anisotropic")
+    nsum = np.empty((len(shapes),) + num_pad.shape, np.float32)
+    for u, reg in enumerate(shapes):
+        nsum[u] = _region_filter(num_pad, reg)
+    dsum = _known_sums(h, w)
+    out = np.empty((h, w, 8), np.float32)
+    directional_means(nsum, dsum, idx, oy, ox, r, h, w, out)
+    return out
 
 
 Rect = tuple[int, int, int, int]  # (y0, y1, x0, x1), half-open, pixels

@@ -150,7 +150,10 @@ def fill_in_domain(depth: np.ndarray, mask: np.ndarray, guide: np.ndarray | None
 
 
 class _Filler:
-    """State of one fill: level-0 depth/hole/confidence plus a ``LevelGrid`` per pyramid level."""
+    """State of one fill: level-0 depth/hole/confidence plus a ``LevelGrid`` per pyramid level. ``search`` is the
+    per-level block search (``block_search.search_level``; ``paper``'s coarsest fill uses a compiled one)."""
+
+    search = staticmethod(search_level)
 
     def __init__(self, depth: np.ndarray, hole: np.ndarray, opts: PaperOptions,
                  observer: BlockObserver | None) -> None:
@@ -289,7 +292,7 @@ class _Filler:
         k_n = len(sel)
         e = np.full((k_n, n_lv), np.inf)
         best = np.full((k_n, n_lv, 2), -1, np.intp)
-        results = list(self.pool.map(lambda lg: search_level(lg[1], c_lv[lg[0]][sel] + lg[1].pad, o.w_depth),
+        results = list(self.pool.map(lambda lg: self.search(lg[1], c_lv[lg[0]][sel] + lg[1].pad, o.w_depth),
                                  enumerate(self.grids)))
         for lv, res in enumerate(results):
             best[:, lv] = res.best

@@ -205,3 +205,91 @@ def object_depth(height: int = 376, width: int = 672, seed: int = 0, sky_depth: 
     noise = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 1.2)
     guide = np.clip(np.where(label == 0, 0.9, shade + 0.05 * noise), 0, 1).astype(np.float32)
     return SyntheticFrame(depth=depth, guide=guide, valid=valid)
+
+
+def room_depth(height: int = 376, width: int = 672, seed: int = 0) -> SyntheticFrame:
+    """A piecewise-planar indoor / built scene with exact depth: floor, ceiling, side walls and a back wall of a
+    room or corridor (random width, height, depth and yaw), door-like openings in the back wall that show a farther
+    wall, a staircase of steps, slanted panels and thin vertical posts (occluding edges at several distances).
+    Deterministic in ``seed``; every pixel has ground truth. Same conventions as :func:`field_depth`."""
+    rng = np.random.default_rng(seed)
+    s = width / 672.0
+    fx = fy = 351.0 * s
+    cx, cy = width / 2.0 + rng.uniform(-8, 8) * s, height / 2.0 + rng.uniform(-8, 8) * s
+    pitch, yaw = np.deg2rad(rng.uniform(-6.0, 12.0)), np.deg2rad(rng.uniform(-25.0, 25.0))
+    cp, sp, cyw, syw = np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    r_cw = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]]) @ np.array([[cyw, 0, syw], [0, 1, 0], [-syw, 0, cyw]])
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays_c = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], axis=-1)
+    d = rays_c @ r_cw  # world directions (x right, y down, z forward); camera at the origin
+    depth = np.full((height, width), np.inf)  # ray parameter = camera z (rays_c has z = 1)
+    half_w, cam_h, ceil_h = rng.uniform(1.2, 4.0), rng.uniform(0.4, 1.7), rng.uniform(2.2, 4.0)
+    back = rng.uniform(5.0, 25.0)
+
+    def plane(n: np.ndarray, c: float, inside=None) -> None:
+        """Put the plane n·p = c (world) where it is nearer, optionally only where ``inside(p)`` holds."""
+        den = d @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(np.abs(den) > 1e-9, c / den, np.inf)
+        ok = np.isfinite(t) & (t > 0.05) & (t < depth)
+        if inside is not None:
+            p = t[..., None] * d
+            ok &= inside(p)
+        depth[ok] = t[ok]
+
+    plane(np.array([0.0, 1.0, 0.0]), cam_h)  # floor y = cam_h
+    plane(np.array([0.0, 1.0, 0.0]), cam_h - ceil_h)  # ceiling
+    plane(np.array([1.0, 0.0, 0.0]), -half_w)  # left wall
+    plane(np.array([1.0, 0.0, 0.0]), half_w)  # right wall
+    doors = [(rng.uniform(-half_w + 0.3, half_w - 1.2), rng.uniform(0.7, 1.4)) for _ in range(int(rng.integers(0, 3)))]
+    door_top = cam_h - rng.uniform(1.8, 2.1)
+    plane(np.array([0.0, 0.0, 1.0]), back + rng.uniform(2.0, 6.0))  # farther wall seen through the doors
+
+    def not_door(p: np.ndarray) -> np.ndarray:
+        ok = np.ones(p.shape[:2], bool)
+        for x0, wd in doors:
+            ok &= ~((p[..., 0] > x0) & (p[..., 0] < x0 + wd) & (p[..., 1] > door_top))
+        return ok
+
+    plane(np.array([0.0, 0.0, 1.0]), back, not_door)
+    if rng.random() < 0.6:  # a staircase: steps of riser r and tread t rising away from the camera
+        z0, rise, tread = rng.uniform(2.0, back - 2.0), rng.uniform(0.12, 0.2), rng.uniform(0.25, 0.35)
+        x0, x1 = sorted(rng.uniform(-half_w, half_w, 2))
+        for k in range(int(rng.integers(3, 8))):
+            zk, yk = z0 + k * tread, cam_h - (k + 1) * rise
+            plane(np.array([0.0, 0.0, 1.0]), zk, lambda p, yk=yk, x0=x0, x1=x1: (p[..., 1] > yk) & (p[..., 1] < cam_h)
+                  & (p[..., 0] > x0) & (p[..., 0] < x1))
+            plane(np.array([0.0, 1.0, 0.0]), yk, lambda p, zk=zk, x0=x0, x1=x1: (p[..., 2] > zk) & (p[..., 0] > x0)
+                  & (p[..., 0] < x1))
+    for _ in range(int(rng.integers(1, 5))):  # slanted rectangular panels
+        c0 = np.array([rng.uniform(-half_w, half_w), cam_h - rng.uniform(0.3, 1.8), rng.uniform(1.5, back - 0.5)])
+        n = rng.normal(size=3)
+        n[2] = -abs(n[2]) - 0.3
+        n /= np.linalg.norm(n)
+        e1 = np.cross(n, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        a, b = rng.uniform(0.3, 1.2, 2)
+        plane(n, float(n @ c0), lambda p, c0=c0, e1=e1, e2=e2, a=a, b=b: (np.abs((p - c0) @ e1) < a)
+              & (np.abs((p - c0) @ e2) < b))
+    for _ in range(int(rng.integers(0, 5))):  # thin posts: front faces of narrow boxes
+        x0, z0, wd = rng.uniform(-half_w, half_w), rng.uniform(1.2, back - 0.5), rng.uniform(0.03, 0.12)
+        plane(np.array([0.0, 0.0, 1.0]), z0, lambda p, x0=x0, wd=wd: (p[..., 0] > x0) & (p[..., 0] < x0 + wd))
+    valid = np.isfinite(depth)
+    depth = np.where(valid, depth, 60.0).astype(np.float32)
+    noise = cv2.GaussianBlur(rng.standard_normal((height, width)).astype(np.float32), (0, 0), 1.2)
+    guide = np.clip(0.5 + 0.1 * noise - 0.01 * depth, 0, 1).astype(np.float32)
+    return SyntheticFrame(depth=depth, guide=guide, valid=valid)
+
+
+def stereo_noise(depth: np.ndarray, seed: int = 0, focal_baseline: float = 351.06 * 0.1187,
+                 sigma_px: float = 0.15, step_px: float = 1.0 / 16.0) -> np.ndarray:
+    """``depth`` (float32 H×W metres) as a stereo matcher measures it: disparity f·B/z plus Gaussian noise of
+    ``sigma_px`` pixels (spatially smoothed over ~2 px, as block matching correlates neighbours), quantised to
+    ``step_px`` (StereoSGBM's 1/16 px), back to depth. Deterministic in ``seed``."""
+    rng = np.random.default_rng(seed)
+    disp = focal_baseline / np.maximum(depth.astype(np.float64), 1e-3)
+    n = cv2.GaussianBlur(rng.standard_normal(depth.shape).astype(np.float32), (0, 0), 1.0)
+    n *= sigma_px / max(float(n.std()), 1e-9)
+    disp = np.maximum(np.round((disp + n) / step_px) * step_px, step_px)
+    return (focal_baseline / disp).astype(np.float32)

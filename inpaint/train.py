@@ -10,7 +10,10 @@ inputs. Loss: smooth-L1 on hidden pixels with valid ground truth, in the per-blo
 ``TrainConfig.formulation`` chooses whose blocks are recorded: ``"greedy"`` (``paper-greedy``, as above) or ``"c2f"``
 (``paper``: the blocks of its refinement passes at levels ``c2f_levels``, recorded while fusing with the best block;
 there the target channel is the current estimate on every pixel and ``known`` marks the measured pixels, and the
-ground truth of a level is the masked pyramid of the exact depth).
+ground truth of a level is the masked pyramid of the exact depth). ``noise_fraction`` of the c2f masks see known
+pixels with stereo-matching noise (``inpaint.synthetic.stereo_noise``) while the ground truth stays exact, so that
+the network does not learn to copy noise as structure (real stereo depth is noisy; the simulator benchmark's known
+pixels are exact).
 
 The library returns the trained weights as bytes and the record as a dict; ``pipeline`` writes the files.
 """
@@ -28,6 +31,7 @@ import torch
 from inpaint.fusion_net import FusionNet, normalise
 from inpaint.masks import occlusion_mask, random_mask
 from inpaint.method import INVERSE_REF_M, inpaint_paper
+from inpaint.synthetic import stereo_noise
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,8 @@ class TrainConfig:
     formulation: str = "greedy"  # whose candidates: "greedy" (paper-greedy) or "c2f" (paper, coarse-to-fine)
     c2f_levels: tuple[int, ...] = (0, 1)  # levels of the c2f passes whose blocks are recorded
     clamp: bool = False  # train through the per-pixel candidate-range clamp (the c2f method applies it)
+    noise_fraction: float = 0.0  # c2f: share of masks whose known pixels carry stereo noise (ground truth exact)
+    noise_px: float = 0.15  # σ of that disparity noise (pixels; ``inpaint.synthetic.stereo_noise``)
 
 
 @dataclass
@@ -184,7 +190,13 @@ def _collect_c2f(frames: Sequence[TrainingFrame], cfg: TrainConfig,
                              ("gt", gt_blk), ("gt_valid", ok_blk)):
                     rec[k].append(np.array(v[use]))
 
-            depth = np.where(mask | ~np.isfinite(frame.depth), np.nan, frame.depth).astype(np.float32)
+            measured = frame.depth
+            if cfg.noise_fraction > 0 and rng.random() < cfg.noise_fraction:
+                # known pixels as a stereo matcher measures them; the net learns to fill towards the exact depth
+                with np.errstate(invalid="ignore"):
+                    measured = stereo_noise(np.nan_to_num(frame.depth, nan=1e3), int(rng.integers(0, 2**31 - 1)),
+                                            cfg.focal_baseline, cfg.noise_px)
+            depth = np.where(mask | ~np.isfinite(frame.depth), np.nan, measured).astype(np.float32)
             inpaint_paper_c2f(depth, mask | ~np.isfinite(frame.depth), observer=observer, **opts)
             done += 1
             if progress is not None:

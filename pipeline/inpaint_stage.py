@@ -27,8 +27,9 @@ from pipeline.errors import AgrivioError
 from pipeline.process_pool import spawn_pool
 
 #: Bump when the stage changes its outputs (invalidates inpainted caches). 2: ``paper`` is the coarse-to-fine
-#: formulation (the greedy one is ``paper-greedy``).
-INPAINT_STAGE_VERSION = 2
+#: formulation (the greedy one is ``paper-greedy``). 3: issue 12 — compiled coarsest search (rounding), nearest-source
+#: init, the network in its inference form and the fusion skip where candidates agree.
+INPAINT_STAGE_VERSION = 3
 
 
 @dataclass(frozen=True)

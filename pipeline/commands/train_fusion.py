@@ -24,9 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--formulation", choices=("c2f", "greedy"), default="c2f",
                    help="whose candidates the net learns to fuse: 'c2f' (method paper, writes fusion_net_c2f.*) or "
                         "'greedy' (method paper-greedy, writes fusion_net.*)")
-    p.add_argument("--source", choices=("auto", "sim", "procedural", "mixed"), default="mixed",
+    p.add_argument("--source", choices=("auto", "sim", "procedural", "mixed", "mixed-rooms"), default="mixed",
                    help="training depth: 'mixed' (default: procedural fields + procedural object scenes + simulator "
-                        "frames, a third each), 'procedural' (fields only: the shipped greedy weights), 'sim'")
+                        "frames, a third each; the shipped c2f weights), 'mixed-rooms' (the same and procedural rooms "
+                        "/ corridors, a quarter each), 'procedural' (fields only: the shipped greedy weights), 'sim'")
     p.add_argument("--frames", type=int, default=20, help="number of ground-truth frames")
     p.add_argument("--masks-per-frame", type=int, default=2)
     p.add_argument("--epochs", type=int, default=40)
@@ -36,6 +37,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--clamp-training", action="store_true",
                    help="c2f: train through the per-pixel candidate-range clamp that the method applies (measured "
                         "worse on the simulator benchmark than training without it: 0.904 vs 0.888 m hole RMSE)")
+    p.add_argument("--noise-fraction", type=float, default=0.0,
+                   help="c2f: share of the masks whose known pixels carry stereo-matching noise (ground truth exact)")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: the package's inpaint/weights, i.e. the shipped weights)")
     p.add_argument("--quiet", action="store_true")
@@ -45,21 +48,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _frames(source: str, n: int, seed: int):
     from inpaint.train import TrainingFrame
 
-    if source == "mixed":
-        from inpaint.synthetic import field_depth, object_depth
+    if source in ("mixed", "mixed-rooms"):
+        from inpaint.synthetic import field_depth, object_depth, room_depth
 
-        k = max(1, n // 3)
+        rooms = source == "mixed-rooms"
+        k = max(1, n // (4 if rooms else 3))
         frames = [TrainingFrame(f.depth, f.valid) for f in (field_depth(seed=10_000 + seed * 1000 + i)
                                                              for i in range(k))]
         frames += [TrainingFrame(f.depth, f.valid) for f in (object_depth(seed=20_000 + seed * 1000 + i)
                                                               for i in range(k))]
         desc = (f"{k} procedural field maps (field_depth seeds {10_000 + seed * 1000}..), {k} procedural object "
                 f"scenes (object_depth seeds {20_000 + seed * 1000}..)")
+        if rooms:
+            frames += [TrainingFrame(f.depth, f.valid) for f in (room_depth(seed=30_000 + seed * 1000 + i)
+                                                                  for i in range(k))]
+            desc += f", {k} procedural rooms / corridors (room_depth seeds {30_000 + seed * 1000}..)"
         try:
             from pipeline.inpaint_bench import sim_training_frames
         except ImportError:
             return frames, desc + "; simulator not available"
-        sim, sdesc = sim_training_frames(n - 2 * k, seed=seed, progress=True)
+        sim, sdesc = sim_training_frames(n - len(frames), seed=seed, progress=True)
         return frames + sim, desc + "; " + sdesc
 
     if source in ("auto", "sim"):
@@ -90,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     c2f = args.formulation == "c2f"
     cfg = TrainConfig(seed=args.seed, masks_per_frame=args.masks_per_frame, epochs=args.epochs,
                       max_seconds=args.max_minutes * 60.0, max_examples=args.max_examples,
-                      formulation=args.formulation, net=dict(C2F_NET) if c2f else {}, clamp=args.clamp_training)
+                      formulation=args.formulation, net=dict(C2F_NET) if c2f else {}, clamp=args.clamp_training,
+                      noise_fraction=args.noise_fraction if c2f else 0.0)
     bar = tqdm(total=len(frames) * cfg.masks_per_frame, desc="collect blocks", disable=args.quiet)
     ex = collect_examples(frames, cfg, progress=lambda d, n: bar.update(d - bar.n))
     bar.close()
