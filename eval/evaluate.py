@@ -6,7 +6,8 @@ This is what ``agrivio evaluate`` and the run pipeline call; the parts live in :
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,14 @@ class EvalOptions:
 
     def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "EvalOptions":
+        """The inverse of :meth:`to_dict` (lists become tuples). Keys of other versions and None values are
+        ignored, so a record written by another version still gives the options it can state."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()
+                      if k in names and v is not None})
 
 
 @dataclass(frozen=True, eq=False)

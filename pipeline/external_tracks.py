@@ -3,7 +3,7 @@
 A researcher runs another system on the EuRoC export of a sequence (``agrivio simulate --euroc``: body frame ``S``
 = the IMU) and passes its TUM file as ``--external NAME=path.tum`` to ``agrivio compare`` or ``agrivio replay``.
 The estimate is evaluated exactly like agrivio's VIO runs of that sequence — same ground truth, association,
-alignment and lever arm (:func:`pipeline.commands.compare.options_for` of a VIO record) — and becomes a run record
+alignment and lever arm (:func:`pipeline.report_stage.options_for` of a VIO record) — and becomes a run record
 labelled ``external: NAME``, so it is a row of every table and a path of every figure, marked as external.
 """
 

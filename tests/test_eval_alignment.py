@@ -126,3 +126,13 @@ def test_lever_arm() -> None:
     assert evaluate(gps, gt).ate.trans.rmse > 0.1  # without the lever arm the antenna offset shows
     with pytest.raises(EvalInputError, match="orientation"):
         apply_lever_arm(gps, arm)
+
+
+def test_eval_options_round_trip_through_a_record_dict():
+    """Records store EvalOptions.to_dict(); from_dict gives the same options back (lists → tuples), and keys of
+    other versions are ignored rather than breaking an old record."""
+    from eval.evaluate import EvalOptions
+
+    opts = EvalOptions(align="posyaw", max_diff_s=0.03, lever_arm_m=(0.1, -0.2, 0.3), rpe_distances_m=(10.0, 50.0))
+    assert EvalOptions.from_dict(opts.to_dict()) == opts
+    assert EvalOptions.from_dict({**opts.to_dict(), "from_the_future": 1, "first_n": None}) == opts

@@ -216,7 +216,7 @@ def test_09_a_truncated_bag_fails_its_sequence_and_the_batch_goes_on(tmp_path, c
 def test_05_disk_full_while_writing_the_report_is_one_line_and_keeps_the_runs(tmp_path, cache, capsys, monkeypatch):
     out = tmp_path / "runs"
     bag = _bag(tmp_path / "seq.bag")
-    import pipeline.commands.compare as compare
+    import pipeline.report_stage as compare
     from pipeline.atomic import atomic_path
 
     def full(target, text):

@@ -32,10 +32,11 @@ from typing import Any
 
 import yaml
 
-from pipeline.commands.compare import write_comparison_report
+from pipeline.commands.report_summary import print_comparison
 from pipeline.commands.run_sequence import failure_summary
 from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
+from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
 _KEYS = {"out", "runs", "seeds", "variants", "inpaint", "msckf_config", "executor", "workers", "ray_address",
@@ -150,7 +151,9 @@ def run(args: argparse.Namespace) -> int:
                          executor=args.executor or cfg["executor"], workers=args.workers or cfg["workers"],
                          ray_address=args.ray_address or cfg["ray_address"], max_frames=cfg["max_frames"],
                          keep_going=True, keep_failed=args.keep_failed)
-    report_dir, _ = write_comparison_report(cfg["out"], cfg["out"] / "report")
+    comparison = write_comparison_report(cfg["out"], cfg["out"] / "report")
+    print_comparison(comparison)
+    report_dir = comparison.out
     n_failed = sum(1 for r in records if r.get("status") != "ok")
     print(f"\n{len(records)} runs ({n_failed} failed). Report: {report_dir / 'report.html'}")
     return failure_summary(records)

@@ -20,10 +20,11 @@ import shutil
 import time
 from pathlib import Path
 
-from pipeline.commands.compare import write_comparison_report
+from pipeline.commands.report_summary import print_comparison
 from pipeline.commands.run_sequence import parse_variants
 from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
+from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
 PRESETS = ("rosario-like-01", "rosario-like-02", "rosario-like-03")
@@ -94,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
         print("\ninpainting benchmark (simulated frames with exact depth, real SGBM hole masks) ...")
         bench_dir = _inpaint_bench(out)
         timings["bench_s"] = time.perf_counter() - t0
-    report_dir, _ = write_comparison_report(out, out / "report")
+    comparison = write_comparison_report(out, out / "report")
+    print_comparison(comparison)
+    report_dir = comparison.out
     replays: list[Path] = []
     if not args.no_replay:
         from pipeline.commands.replay import replay_runs

@@ -25,7 +25,7 @@ from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.records import RunRecord
 from eval.trajectory import Trajectory, read_tum
 from pipeline.bag_reader import RosarioSequence
-from pipeline.commands.compare import options_for
+from pipeline.report_stage import options_for
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
 from pipeline.errors import AgrivioError

@@ -12,9 +12,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from pipeline.commands.compare import write_comparison_report
+from pipeline.commands.report_summary import print_comparison
 from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
+from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 
 
@@ -83,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
                          inpaint_method=args.inpaint, msckf_config=args.config, executor=args.executor,
                          workers=args.workers, ray_address=args.ray_address, max_frames=args.max_frames,
                          keep_failed=args.keep_failed)
-    report_dir, _ = write_comparison_report(args.out, args.out / "report")
+    comparison = write_comparison_report(args.out, args.out / "report")
+    print_comparison(comparison)
+    report_dir = comparison.out
     n_failed = sum(1 for r in records if r.get("status") != "ok")
     print(f"\n{len(records)} runs ({n_failed} failed). Report: {report_dir / 'report.html'}")
     return failure_summary(records)
