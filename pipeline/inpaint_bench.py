@@ -20,6 +20,7 @@ import io
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -172,6 +173,22 @@ def to_json(res: BenchResult) -> dict:
                     for m in res.methods},
         "median_seconds": {m: res.median_seconds(m) for m in res.methods},
     }
+
+
+def write_bench(res: BenchResult, out: Path, source: str, wall_s: float) -> str:
+    """Write ``results.md``, ``results.json`` and ``grid.png`` of a benchmark into ``out`` (atomically); returns the
+    Markdown table."""
+    from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
+
+    md = to_markdown(res, f"Depth inpainting benchmark ({source} frames)")
+    js = to_json(res)
+    js["source"] = source
+    js["wall_s"] = float(wall_s)
+    write_text_atomic(out / "results.md", md)
+    write_json_atomic(out / "results.json", js)
+    with atomic_path(out / "grid.png", suffix=".png") as tmp:
+        tmp.write_bytes(figure_png(res))
+    return md
 
 
 def _colour_depth(d: np.ndarray, vmax: float, holes: np.ndarray | None = None) -> np.ndarray:

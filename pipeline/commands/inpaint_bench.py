@@ -8,10 +8,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
-from pipeline.inpaint_bench import (ABLATIONS, DEFAULT_METHODS, figure_png, parse_method, procedural_frames,
-                                    run_bench, to_json, to_markdown)
+from pipeline.inpaint_bench import ABLATIONS, DEFAULT_METHODS, parse_method, procedural_frames, run_bench, write_bench
 from pipeline.paths import cache_dir
 
 
@@ -79,14 +77,7 @@ def run(args: argparse.Namespace) -> int:
     res = run_bench(frames, methods, options, peak=args.peak, max_depth=args.max_depth,
                     progress=lambda f, m: (bar.set_postfix_str(f"{f} {m}"), bar.update()))
     bar.close()
-    md = to_markdown(res, f"Depth inpainting benchmark ({source} frames)")
-    js = to_json(res)
-    js["source"] = source
-    js["wall_s"] = time.perf_counter() - t0
-    write_text_atomic(out / "results.md", md)
-    write_json_atomic(out / "results.json", js)
-    with atomic_path(out / "grid.png", suffix=".png") as tmp:
-        tmp.write_bytes(figure_png(res))
+    md = write_bench(res, out, source, time.perf_counter() - t0)
     print(md)
     print(f"written: {out / 'results.md'}, {out / 'results.json'}, {out / 'grid.png'}")
     return 0
