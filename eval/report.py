@@ -262,8 +262,8 @@ def build_report(records: Sequence[RunRecord],
     """
     groups = summarize(records)
     # "After" is the paper's method when it ran; otherwise the one other inpainting method that ran (if any).
-    variants = sorted({g.variant for g in groups})
-    after = AFTER if AFTER in variants else next((v for v in variants if v.startswith(AFTER + "[")), AFTER)
+    inpainted = sorted({g.variant for g in groups if g.base_variant == AFTER})
+    after = AFTER if AFTER in inpainted else next(iter(inpainted), AFTER)
     rows = compare_groups(groups, after=after)
     evaluations = evaluations or {}
     figures: list[Figure] = []

@@ -64,6 +64,8 @@ class GroupStats:
         failures: (seed, reason) of each failed run.
         metrics: metric name → summary over the successful runs (a run missing the metric is not counted in it).
         seeds: seeds of all runs, sorted.
+        base_variant: the runs' own variant (``depth-inpainted`` for every inpainting method); inpaint_method: their
+            inpainting method (None where none applies) — fields, so nothing parses them out of ``variant``.
     """
 
     sequence: str
@@ -74,6 +76,8 @@ class GroupStats:
     failures: tuple[tuple[int, str], ...]
     metrics: dict[str, MetricSummary] = field(default_factory=dict)
     seeds: tuple[int, ...] = ()
+    base_variant: str = ""
+    inpaint_method: str | None = None
 
     def to_dict(self) -> dict:
         return {"sequence": self.sequence, "variant": self.variant, "n_runs": self.n_runs, "n_ok": self.n_ok,
@@ -105,7 +109,7 @@ def summarize(records: Iterable[RunRecord], metric_names: Sequence[str] = DEFAUL
         metrics = {m: MetricSummary.of([r.metric(m) for r in ok]) for m in metric_names}
         out.append(GroupStats(seq, var, len(recs), len(ok), len(failed),
                               tuple((r.seed, r.failure_reason or "") for r in failed), metrics,
-                              tuple(r.seed for r in recs)))
+                              tuple(r.seed for r in recs), recs[0].variant, recs[0].inpaint_method))
     out.sort(key=lambda g: (g.sequence, variant_sort_key(g.variant)))
     return out
 
