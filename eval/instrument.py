@@ -26,11 +26,6 @@ _COLUMNS = (("feature_depth", "filled_fraction", "filled share of feature depths
             ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"))
 
 
-def _variant_label(rec: RunRecord) -> str:
-    return f"{rec.variant}[{rec.inpaint_method}]" if rec.variant == "depth-inpainted" and rec.inpaint_method \
-        else rec.variant
-
-
 def instrument_table(records: Sequence[RunRecord]) -> str | None:
     """Markdown table (medians over the successful runs of each sequence × variant), or None when no record
     carries the statistics."""
@@ -41,7 +36,7 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
         for section, key, _, _ in _COLUMNS:
             v = (rec.extra.get(section) or {}).get(key)
             if isinstance(v, (int, float)) and np.isfinite(v):
-                values[(rec.sequence, _variant_label(rec))][key].append(float(v))
+                values[(rec.sequence, rec.display_variant())][key].append(float(v))
     if not values:
         return None
     head = "| sequence | variant | runs | " + " | ".join(c[2] for c in _COLUMNS) + " |"
