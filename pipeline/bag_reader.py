@@ -45,13 +45,14 @@ class StereoFrame:
 
     Attributes:
         stamp_ns: left image header stamp, ns.
-        left_bgr, right_bgr: (H, W, 3) uint8 raw BGR images (writable copies).
+        left_bgr, right_bgr: (H, W, 3) uint8 raw BGR images (writable copies); ``right_bgr`` is None when the
+            caller asked for the left images only (``stereo_frames(right=False)``).
         index: 0-based pair number from the start of the bag (stable across calls; used as the depth-cache key).
     """
 
     stamp_ns: int
     left_bgr: np.ndarray
-    right_bgr: np.ndarray
+    right_bgr: np.ndarray | None
     index: int
 
 
@@ -442,11 +443,13 @@ class RosarioSequence:
         return data[:h * step].reshape(h, step)[:, :w * 3].reshape(h, w, 3).copy()
 
     # ---- streams -----------------------------------------------------------------------------------------------
-    def stereo_frames(self, start_index: int = 0, stop_index: int | None = None) -> Iterator[StereoFrame]:
+    def stereo_frames(self, start_index: int = 0, stop_index: int | None = None,
+                      right: bool = True) -> Iterator[StereoFrame]:
         """Stereo pairs in time order, matched by header stamp within ``pair_tolerance_ns``.
 
         A frame without a partner is skipped and counted in ``stats.unpaired_left/right``. Indices count pairs
-        from the start of the bag; pairs before ``start_index`` are matched but not decoded.
+        from the start of the bag; pairs before ``start_index`` are matched but not decoded. ``right=False``: the
+        pairs are formed as always (same indices) but the right image is not decoded (``right_bgr`` None).
         """
         st = self.stats
         st.stereo_pairs = st.unpaired_left = st.unpaired_right = 0
@@ -478,7 +481,8 @@ class RosarioSequence:
                 left_msg, right_msg = (msg, msg_mate) if topic == L.TOPIC_LEFT_IMAGE else (msg_mate, msg)
                 t_left = t if topic == L.TOPIC_LEFT_IMAGE else t_mate
                 yield StereoFrame(t_left, self._image(left_msg, L.TOPIC_LEFT_IMAGE, sizes[L.TOPIC_LEFT_IMAGE]),
-                                  self._image(right_msg, L.TOPIC_RIGHT_IMAGE, sizes[L.TOPIC_RIGHT_IMAGE]), index)
+                                  self._image(right_msg, L.TOPIC_RIGHT_IMAGE, sizes[L.TOPIC_RIGHT_IMAGE])
+                                  if right else None, index)
                 continue
             if mate in pending and t - pending[mate][0] > tol:
                 drop(mate)  # the other side's frame is too old to find a partner now

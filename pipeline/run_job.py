@@ -217,7 +217,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
     qs: list[np.ndarray] = []
     k_imu = 0
     try:
-        for frame in seq.stereo_frames(stop_index=inputs.max_frames):
+        for frame in seq.stereo_frames(stop_index=inputs.max_frames, right=variant == "stereo"):
             t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's
             k_end = imu_samples_through(imu_ns, frame.stamp_ns, k_imu)  # ordered in integer ns, not in seconds
             for k in range(k_imu, k_end):

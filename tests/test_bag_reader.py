@@ -178,3 +178,13 @@ def test_interleaved_streams_and_ranges(small_bag):
     part = seq.imu_array(start_ns=t0, stop_ns=t1)
     assert part.shape[0] == 10
     assert seq.duration_s == pytest.approx((seq.end_ns - seq.start_ns) / 1e9)
+
+
+def test_left_only_frames_are_the_same_pairs_without_decoding_the_right(small_bag):
+    """Depth runs read the left image only: the same pairs, indices and left images, no right image."""
+    path, _ = small_bag
+    seq = RosarioSequence(path)
+    both = list(seq.stereo_frames())
+    left = list(seq.stereo_frames(right=False))
+    assert [(f.index, f.stamp_ns) for f in left] == [(f.index, f.stamp_ns) for f in both]
+    assert all(f.right_bgr is None and np.array_equal(f.left_bgr, g.left_bgr) for f, g in zip(left, both))
