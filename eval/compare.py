@@ -160,17 +160,20 @@ def table2(rows: Sequence[ComparisonRow]) -> Table:
 
 
 def variants_table(groups: Sequence[GroupStats]) -> Table:
-    """Every sequence × variant: runs ok/total, failed runs, ATE mean and RMSE (mean ± std, min–max), reasons."""
+    """Every sequence × variant: runs ok/total, failed runs, ATE mean and RMSE (mean ± std, min–max), ATE RMSE as a
+    percentage of the distance driven (mean over runs), reasons."""
     header = ["Sequence", "Variant", "runs ok/total", "failed", "ATE mean (m)", "ATE RMSE (m)", "RMSE min–max (m)",
-              "failure reasons"]
+              "ATE RMSE (% of distance)", "failure reasons"]
     body = []
     for g in groups:
         r = g.metrics.get("ate_rmse_m")
         span = "–" if r is None or r.n == 0 else f"{r.min:.3f}–{r.max:.3f}"
         reasons = "; ".join(f"seed {s}: {reason[:160]}" for s, reason in g.failures) or "–"
         failed = f"**{g.n_failed}**" if g.n_failed else "0"
+        pct = g.metrics.get("ate_rmse_pct_distance")
+        pct_s = "–" if pct is None or pct.n == 0 else f"{pct.mean:.2f} %"
         body.append([g.sequence, g.variant, f"{g.n_ok}/{g.n_runs}", failed, fmt_pm(g.metrics.get("ate_mean_m")),
-                     fmt_pm(r), span, reasons])
+                     fmt_pm(r), span, pct_s, reasons])
     return header, body
 
 

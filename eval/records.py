@@ -116,7 +116,11 @@ class RunRecord:
         return self.variant
 
     def metric(self, name: str) -> float | None:
-        """A numeric metric or None (missing, null or not finite)."""
+        """A numeric metric or None (missing, null or not finite). ``ate_rmse_pct_distance`` is derived: ATE RMSE
+        as a percentage of the reference path length (``100 · ate_rmse_m / ref_path_length_m``)."""
+        if name == "ate_rmse_pct_distance":
+            rmse, length = self.metric("ate_rmse_m"), self.metric("ref_path_length_m")
+            return 100.0 * rmse / length if rmse is not None and length is not None and length > 0 else None
         v = self.metrics.get(name)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
             return None

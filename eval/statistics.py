@@ -19,7 +19,7 @@ __all__ = ["MetricSummary", "GroupStats", "summarize", "variant_sort_key", "welc
            "DEFAULT_METRICS", "VARIANT_ORDER"]
 
 #: Metrics summarised by default: ATE RMSE and ATE mean (metres).
-DEFAULT_METRICS = ("ate_rmse_m", "ate_mean_m")
+DEFAULT_METRICS = ("ate_rmse_m", "ate_mean_m", "ate_rmse_pct_distance")
 #: Display order of the standard variants; anything else goes between depth-inpainted and odometry.
 VARIANT_ORDER = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 

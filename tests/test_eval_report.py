@@ -234,3 +234,20 @@ def test_mean_std_keeps_two_significant_digits_of_a_small_spread():
     assert fmt_pm(MetricSummary.of([0.60, 0.65, 0.63])) == "0.627 ± 0.025"
     assert fmt_pm(MetricSummary.of([0.5, 0.5])) == "0.500 ± 0.000"
     assert fmt_pm(MetricSummary.of([0.4])) == "0.400"
+
+
+def test_variants_table_gives_ate_as_a_share_of_the_distance_driven():
+    """Long sequences are judged by drift over distance: the variants table states ATE RMSE as % of the
+    reference path length (derived from each record, so older records get it too)."""
+    from eval.compare import variants_table
+    from eval.records import RunRecord
+    from eval.statistics import summarize
+
+    recs = [RunRecord("s", "stereo", k, metrics={"ate_rmse_m": 0.5 + 0.1 * k, "ref_path_length_m": 100.0})
+            for k in range(3)]
+    recs.append(RunRecord("s", "depth-raw", 0, metrics={"ate_rmse_m": 0.5}))          # no path length: no share
+    assert recs[0].metric("ate_rmse_pct_distance") == pytest.approx(0.5)
+    header, body = variants_table(summarize(recs))
+    col = header.index("ATE RMSE (% of distance)")
+    rows = {r[1]: r for r in body}
+    assert rows["stereo"][col] == "0.60 %" and rows["depth-raw"][col] == "–"
