@@ -26,9 +26,9 @@ from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
 from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
-from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, ekf_update_information,
-                          find_redundant_clones, gating_chi2, downweight_features, whiten_track_drift, inject_correction, inverse_depth_sigma,
-                          measurement_blocks, qr_update, schur_information)
+from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, downweight_features,
+                          ekf_update_information, find_redundant_clones, gating_chi2, inject_correction,
+                          inverse_depth_sigma, measurement_blocks, qr_update, schur_information, whiten_track_drift)
 
 __all__ = ["MsckfFilter", "FrameStats"]
 
@@ -58,6 +58,21 @@ class FrameStats:
     timings: dict[str, float] = field(default_factory=dict)
     gate_gamma: list[np.ndarray] = field(default_factory=list)
     gate_dof: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def n_gated(self) -> int:
+        """Features that went through the χ² gate in this frame."""
+        return int(sum(np.size(g) for g in self.gate_gamma))
+
+    def gamma_per_dof(self) -> np.ndarray:
+        """(M,) γ/dof of this frame's gated features with a finite γ and dof > 0 (≈ 1 when calibrated)."""
+        parts = []
+        for g, dof in zip(self.gate_gamma, self.gate_dof):
+            g = np.asarray(g, dtype=np.float64)
+            dof = np.broadcast_to(np.asarray(dof, dtype=np.float64), g.shape)
+            ok = (dof > 0) & np.isfinite(g)
+            parts.append(g[ok] / dof[ok])
+        return np.concatenate(parts) if parts else np.zeros(0)
 
 
 class MsckfFilter:

@@ -20,7 +20,8 @@ Marginalising the feature. S-MSCKF projects each feature's residual on the left 
 ``Λ = H_xᵀH_x − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀH_x``, ``η = H_xᵀr − H_xᵀH_f (H_fᵀH_f)⁻¹ H_fᵀr``, where H_xᵀH_x is
 block-diagonal per clone — so the cost grows with features × clones, not with rows × columns². The update is
 then ``δx = P_:c (Λ̃ P_cc + I)⁻¹ η̃`` and ``P⁺ = P − P_:c (Λ̃ P_cc + I)⁻¹ Λ̃ P_c:`` (Λ̃ = Λ/σ², η̃ = η/σ²;
-push-through identity, exact). ``method="qr"`` (:func:`qr_update`, the default) runs the literal S-MSCKF path (per-feature QR null space,
+push-through identity, exact). ``method="qr"`` (:func:`qr_update`, the default) runs the literal S-MSCKF path
+(per-feature QR null space,
 stacked QR, Joseph-form Kalman update) — tests check the two agree.
 
 χ² gate: per feature, ``γ = r_oᵀ(H_o P H_oᵀ + σ²I)⁻¹ r_o`` on the projected residual, computed without the
@@ -40,7 +41,8 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
-           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information", "qr_update", "inject_correction",
+           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information",
+           "null_space_project", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
 
@@ -411,33 +413,30 @@ def null_space_project(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, 
     rows, n_valid = rows[use], n_valid[use]
     k = len(rows)
     order = np.argsort(~rows, axis=1, kind="stable")                     # valid rows first, in their order
-    fi = np.arange(k)[:, None]
-    A = np.where(rows[..., None], batch.Hf[use].reshape(k, m, 3), 0.0)[fi, order]          # (k, m, 3)
-    # [H_x | r] on the full clone columns (each observation's 6 columns at its clone's block)
-    B = np.zeros((k, m, ncol + 1))
+    # [H_f | H_x | r] per feature, H_x on the full clone columns (each observation's 6 at its clone's block)
+    M = np.zeros((k, m, 3 + ncol + 1))
+    M[..., :3] = np.where(rows[..., None], batch.Hf[use].reshape(k, m, 3), 0.0)
     Hx = np.where(rows[..., None], batch.Hx[use].reshape(k, m, 6), 0.0)
     pos = np.repeat(batch.pos[use], R, axis=1)                           # (k, m) clone of each row
     real = pos < n_clones
-    col = 6 * np.where(real, pos, 0)[..., None] + np.arange(6)
+    col = 3 + 6 * np.where(real, pos, 0)[..., None] + np.arange(6)
     ff, rr = np.nonzero(real)
-    B[ff[:, None], rr[:, None], col[ff, rr]] = Hx[ff, rr]
-    B[..., ncol] = np.where(rows, batch.r[use].reshape(k, m), 0.0)
-    B = B[fi, order]
-    for j in range(3):
-        x = A[:, j:, j]
-        norm = np.linalg.norm(x, axis=1)
-        alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * norm
+    M[ff[:, None], rr[:, None], col[ff, rr]] = Hx[ff, rr]
+    M[..., -1] = np.where(rows, batch.r[use].reshape(k, m), 0.0)
+    M = M[np.arange(k)[:, None], order]
+    for j in range(3):  # Householder QR of H_f, applied to the whole row block
+        x = M[:, j:, j]
+        alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * np.linalg.norm(x, axis=1)
         v = x.copy()
         v[:, 0] -= alpha
         vn = np.linalg.norm(v, axis=1)
         ok = vn > 1e-300
         v[ok] /= vn[ok, None]
         v[~ok] = 0.0
-        A[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, A[:, j:])[:, None, :]
-        B[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, B[:, j:])[:, None, :]
+        M[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, M[:, j:])[:, None, :]
     keep = (np.arange(m)[None, :] >= 3) & (np.arange(m)[None, :] < n_valid[:, None])
-    out = B[keep]
-    return out[:, :ncol], out[:, ncol]
+    out = M[keep]
+    return out[:, 3:3 + ncol], out[:, -1]
 
 
 def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -> tuple[np.ndarray, np.ndarray]:

@@ -180,11 +180,14 @@ class DepthCache:
         self._loaded = (chunk, dict(frames))
 
     # ---- public API --------------------------------------------------------------------------------------------
+    def _encoded(self, index: int) -> _Encoded | None:
+        chunk = index // self.chunk_size
+        return self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+
     def get(self, index: int, grey: bool = True) -> DepthFrame | None:
         """The cached frame ``index`` (depth in whole millimetres) or None. ``grey=False`` skips decoding the
         rectified grey image (``left_rect_grey`` is then None): the VIO reads only the depth."""
-        chunk = index // self.chunk_size
-        enc = self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+        enc = self._encoded(index)
         return enc.decode(grey) if enc is not None else None
 
     def put(self, frame: DepthFrame) -> None:
@@ -208,8 +211,7 @@ class DepthCache:
         ratios were stored decode the depth PNG), or None when a frame is missing."""
         out = np.empty(stop, dtype=np.float64)
         for index in range(stop):
-            chunk = index // self.chunk_size
-            enc = self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+            enc = self._encoded(index)
             if enc is None:
                 return None
             h = enc.hole_ratio

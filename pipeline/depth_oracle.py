@@ -363,9 +363,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
             n_depth += int(has.sum())
             n_feat += len(has)
             n_gated += filt.last_stats.n_gated_out
-            for g, dof in zip(filt.last_stats.gate_gamma, filt.last_stats.gate_dof):
-                ok = dof > 0
-                g_ratio.append(g[ok] / dof[ok])
+            g_ratio.append(filt.last_stats.gamma_per_dof())
             if pose is not None:
                 stamps.append(pose.stamp_s)
                 ps.append(pose.p_world)
@@ -375,7 +373,6 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
     traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
                       np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
     gr = np.concatenate(g_ratio) if g_ratio else np.zeros(0)
-    gr = gr[np.isfinite(gr)]
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
                            "gamma_per_dof_median": float(np.median(gr)) if len(gr) else float("nan"),
                            "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan")}

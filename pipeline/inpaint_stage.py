@@ -89,14 +89,12 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
     st.update(computed=0, cached=0, compute_s=0.0)
     store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
     st["directory"] = str(store.directory)
-    n_total = store.n_frames
-    if n_total is not None:
-        stop = n_total if stop_index is None else min(n_total, stop_index)
-        if store.has_frames(stop, verify=True):  # a corrupt chunk reads as missing and is recomputed below
-            for frame in store.iter(0, stop):
-                st["cached"] += 1
-                yield frame
-            return
+    stop = _complete_stop(store, stop_index)
+    if stop is not None:
+        for frame in store.iter(0, stop):
+            st["cached"] += 1
+            yield frame
+        return
     n_workers = max(1, workers or os.cpu_count() or 1)
     raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root,
                        stop_index=stop_index)
@@ -128,18 +126,26 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
         store.mark_complete(n)
 
 
+def _complete_stop(store: DepthCache, stop_index: int | None) -> int | None:
+    """The number of frames to serve from a cache that holds all of them intact (frames ``0 .. stop_index-1``, or
+    the whole sequence), or None when something must be (re)computed; a corrupt chunk reads as missing."""
+    n_total = store.n_frames
+    if n_total is None:
+        return None
+    stop = n_total if stop_index is None else min(n_total, stop_index)
+    return stop if store.has_frames(stop, verify=True) else None
+
+
 def ensure_inpainted(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
                      stats: dict[str, Any] | None = None, stop_index: int | None = None) -> None:
     """Make sure frames ``0 .. stop_index-1`` (all without it) are in the inpainted cache, computing what is
     missing; a complete, intact cache is checked without decoding any image (``stats['cached']`` counts it)."""
     st = stats if stats is not None else {}
     store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
-    n_total = store.n_frames
-    if n_total is not None:
-        stop = n_total if stop_index is None else min(n_total, stop_index)
-        if store.has_frames(stop, verify=True):
-            st.update(computed=0, cached=stop, compute_s=0.0, directory=str(store.directory))
-            return
+    stop = _complete_stop(store, stop_index)
+    if stop is not None:
+        st.update(computed=0, cached=stop, compute_s=0.0, directory=str(store.directory))
+        return
     for _ in inpainted_stream(sequence, params, cache_root, progress=progress, stats=st, stop_index=stop_index):
         pass
 

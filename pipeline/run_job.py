@@ -108,11 +108,8 @@ class _FrameLog:
 
     def add_gate(self, stats: Any) -> None:
         """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature."""
-        for g, dof in zip(stats.gate_gamma, stats.gate_dof):
-            g, dof = np.asarray(g, dtype=np.float64), np.broadcast_to(np.asarray(dof, dtype=np.float64), np.shape(g))
-            ok = (dof > 0) & np.isfinite(g)
-            self.gate_ratio.append(g[ok] / dof[ok])
-            self.gated += int(g.size)
+        self.gate_ratio.append(stats.gamma_per_dof())
+        self.gated += stats.n_gated
         self.gated_out += int(stats.n_gated_out)
 
     def gate_summary(self) -> dict[str, float]:
@@ -152,9 +149,9 @@ class _FrameLog:
                     fh, stamps_s=np.array(self.stamps), n_features=np.array(self.n_features),
                     n_depth=np.array(self.n_depth), frame_ms=np.array(self.frame_ms),
                     feature_offsets=np.concatenate([[0], np.cumsum(counts)]),
-                    feature_uv=np.concatenate(self.uv) if self.uv else np.zeros((0, 2), np.float32),
-                    feature_track_length=np.concatenate(self.track_len) if self.track_len else np.zeros(0, np.int32),
-                    feature_source=np.concatenate(self.source) if self.source else np.zeros(0, np.uint8),
+                    feature_uv=_cat(self.uv, np.float32).reshape(-1, 2),
+                    feature_track_length=_cat(self.track_len, np.int32),
+                    feature_source=_cat(self.source, np.uint8),
                     feature_depth_m=_cat(self.depth, np.float32),
                     feature_depth_sigma_m=_cat(self.depth_sigma, np.float32),
                     feature_depth_measured=_cat(self.measured, bool))

@@ -126,8 +126,8 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     depth_stats: dict[str, Any] = {}
     if any(v.startswith("depth") for v in variants):
         t0 = time.perf_counter()
-        raw_store = DepthCache(cache_root, seq.identity(), DepthParams())
-        cached_holes = raw_store.hole_ratios(n_frames) if raw_store.has_frames(n_frames, verify=True) else None
+        # every frame present and intact: the hole ratios come from the chunk index, no image is decoded
+        cached_holes = DepthCache(cache_root, seq.identity(), DepthParams()).hole_ratios(n_frames)
         if cached_holes is not None:  # a warm cache: no image is decoded here (the runs read what they need)
             holes = cached_holes.tolist()
         else:
