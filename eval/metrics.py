@@ -31,8 +31,8 @@ from eval.trajectory import Trajectory
 __all__ = ["ErrorStats", "AteResult", "RpeResult", "ate", "rpe", "select_pairs_by_distance",
            "default_rpe_distances", "DEFAULT_RPE_DISTANCES_M", "DEFAULT_RPE_FRACTIONS"]
 
-#: Preferred RPE segment lengths (metres) for field-scale sequences.
-DEFAULT_RPE_DISTANCES_M = (10.0, 20.0, 50.0)
+#: Preferred RPE segment lengths (metres) for field-scale sequences (hundreds of metres: a row is 60–90 m).
+DEFAULT_RPE_DISTANCES_M = (10.0, 50.0, 100.0)
 #: rpg's sub-trajectory lengths as fractions of the reference path length, used when the path is too short.
 DEFAULT_RPE_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
 
@@ -204,7 +204,7 @@ def rpe(ref: Trajectory, est: Trajectory, delta_m: float, rel_tol: float = 0.2,
 
 def default_rpe_distances(path_length_m: float, preferred: tuple[float, ...] = DEFAULT_RPE_DISTANCES_M,
                           fractions: tuple[float, ...] = DEFAULT_RPE_FRACTIONS,
-                          max_fraction: float = 0.5) -> tuple[float, ...]:
+                          max_fraction: float = 0.75) -> tuple[float, ...]:
     """RPE segment lengths suited to a reference path of ``path_length_m`` metres.
 
     The ``preferred`` distances no longer than ``max_fraction`` of the path (so that many segments fit); when

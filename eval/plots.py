@@ -74,14 +74,23 @@ def plot_top_view(reference: Trajectory | None, estimates: Mapping[str, Trajecto
 
 
 def plot_error_over_time(series: Mapping[str, tuple[np.ndarray, np.ndarray]], title: str = "",
-                         fmt: str = "png") -> bytes:
-    """Translational error (m) over time (s from each series' first stamp); ``label → (stamps_s, errors_m)``."""
-    fig = _new_figure(6.4, 3.6)
+                         fmt: str = "png", spans: Sequence[tuple[float, float]] = (),
+                         t0_s: float | None = None, span_label: str = "turn") -> bytes:
+    """Translational error (m) over time; ``label → (stamps_s, errors_m)``.
+
+    Time is in seconds from ``t0_s`` (default: the earliest first stamp of the series); ``spans`` (start, end)
+    stamps in seconds, e.g. the reference's turns, are shaded and labelled ``span_label`` once in the legend.
+    """
+    fig = _new_figure(6.4 if not spans else 8.0, 3.6)
     ax = fig.add_subplot()
+    firsts = [float(np.asarray(t)[0]) for t, _ in series.values() if np.asarray(t).size]
+    origin = t0_s if t0_s is not None else (min(firsts) if firsts else 0.0)
+    for k, (a, b) in enumerate(spans):
+        ax.axvspan(a - origin, b - origin, color="0.85", zorder=0, label=span_label if k == 0 else None)
     for i, (label, (t, e)) in enumerate(series.items()):
         t = np.asarray(t, dtype=np.float64)
         if t.size:
-            ax.plot(t - t[0], np.asarray(e), color=_color(i), lw=1.0, ls=_linestyle(label), label=label)
+            ax.plot(t - origin, np.asarray(e), color=_color(i), lw=1.0, ls=_linestyle(label), label=label)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("translational error (m)")
     ax.grid(True, alpha=0.3)

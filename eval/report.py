@@ -21,7 +21,9 @@ from eval.evaluate import Evaluation
 from eval.plots import plot_ate_boxplot, plot_error_over_time, plot_rpe_vs_distance, plot_top_view
 from eval.records import RunRecord
 from eval.instrument import instrument_table
+from eval.rpe_table import rpe_table
 from eval.statistics import GroupStats, summarize, variant_sort_key
+from eval.turns import find_turns
 
 __all__ = ["Figure", "Report", "build_report", "rpe_series", "markdown_to_html"]
 
@@ -37,6 +39,9 @@ def metric_note(after: str = AFTER) -> str:
 
 
 METRIC_NOTE = metric_note()
+RPE_NOTE = ("RPE = translation RMSE of the relative pose error over segments of that travelled distance (pairs on "
+            "the ground truth's path; mean ± sample std over the successful runs, metres), in brackets the mean drift "
+            "(error / distance, %). Only distances up to ¾ of a sequence's path are evaluated.")
 
 
 @dataclass(frozen=True)
@@ -250,7 +255,8 @@ def _slug(text: str) -> str:
 def build_report(records: Sequence[RunRecord],
                  evaluations: Mapping[tuple[str, str], Evaluation] | None = None,
                  inpaint_bench_md: str | None = None, title: str = "agrivio: depth inpainting vs VIO accuracy",
-                 notes: Sequence[str] = (), sections: Sequence[tuple[str, str]] = ()) -> Report:
+                 notes: Sequence[str] = (), sections: Sequence[tuple[str, str]] = (),
+                 after: str | None = None) -> Report:
     """Statistics, the before/after comparison and the figures.
 
     Args:
@@ -259,11 +265,14 @@ def build_report(records: Sequence[RunRecord],
             top-view and error-over-time figures (optional; without it only box plots and RPE are drawn).
         inpaint_bench_md: the inpainting benchmark table (Markdown), embedded as is.
         notes: lines shown as call-outs (e.g. records that could not be read).
+        after: the displayed variant compared with ``depth-raw`` in Table 2 (e.g. ``depth-inpainted[telea]``);
+            default: the paper's method when it ran, else the first other inpainting method (alphabetical).
     """
     groups = summarize(records)
     # "After" is the paper's method when it ran; otherwise the one other inpainting method that ran (if any).
     inpainted = sorted({g.variant for g in groups if g.base_variant == AFTER})
-    after = AFTER if AFTER in inpainted else next(iter(inpainted), AFTER)
+    if after is None or after not in inpainted:
+        after = AFTER if AFTER in inpainted else next(iter(inpainted), AFTER)
     rows = compare_groups(groups, after=after)
     evaluations = evaluations or {}
     figures: list[Figure] = []
@@ -280,15 +289,22 @@ def build_report(records: Sequence[RunRecord],
             figures.append(Figure(f"{_slug(seq)}_top_view", f"{seq}: top view of one run per variant, aligned to "
                                   f"ground truth", plot_top_view(reference, {v: e.est_aligned for v, e in evs.items()},
                                                                  title=f"{seq}: top view (aligned)")))
+            turns = find_turns(reference)
+            turn_note = f"; {len(turns)} turn(s) of the ground truth shaded" if turns else ""
             figures.append(Figure(f"{_slug(seq)}_error_time", f"{seq}: translational error over time (one run per "
-                                  f"variant)", plot_error_over_time({v: (e.ate.stamps_s, e.ate.errors_m)
-                                                                     for v, e in evs.items()},
-                                                                    title=f"{seq}: ATE over time")))
+                                  f"variant{turn_note})",
+                                  plot_error_over_time({v: (e.ate.stamps_s, e.ate.errors_m) for v, e in evs.items()},
+                                                       title=f"{seq}: ATE over time",
+                                                       spans=[(t.start_s, t.end_s) for t in turns],
+                                                       t0_s=float(reference.stamps_s[0]))))
         series = rpe_series(records, seq)
         if series:
             figures.append(Figure(f"{_slug(seq)}_rpe", f"{seq}: RPE translation RMSE vs travelled distance (mean ± "
                                   f"std over runs)", plot_rpe_vs_distance(series, title=f"{seq}: RPE vs distance")))
     versions = tuple(sorted({r.code_version for r in records if r.code_version}))
+    long_rpe = rpe_table(records)
+    if long_rpe:
+        sections = [*sections, ("Relative pose error over distance", markdown_table(long_rpe) + "\n\n" + RPE_NOTE)]
     instrument = instrument_table(records)
     if instrument:
         sections = [*sections, ("Depth given to the filter and its χ² gate", instrument)]

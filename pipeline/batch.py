@@ -163,9 +163,11 @@ def run_jobs(jobs: Sequence[Job], run_fn: RunFn, executor: str = "local", worker
     """
     if executor not in EXECUTORS:
         raise AgrivioError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
-    labels = [job.label for job in jobs]
+    # two inpainting methods of depth-inpainted are two jobs of the same sequence/variant/seed
+    labels = [(job.label, job.options.get("inpaint_method")) for job in jobs]
     if len(set(labels)) != len(labels) or len({job.out_dir for job in jobs}) != len(jobs):
-        raise AgrivioError("the batch holds duplicate jobs (same sequence/variant/seed or output folder)")
+        raise AgrivioError("the batch holds duplicate jobs (same sequence/variant/inpainting method/seed or output "
+                           "folder)")
     pending = _say_what_is_redone(jobs, keep_failed)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(pending), desc="runs", unit="run", disable=not progress)
     try:

@@ -184,11 +184,20 @@ class Comparison:
         return self.report.markdown("figures").split("## Figures")[0].rstrip()
 
 
+def _after_variant(method: str | None) -> str | None:
+    """The displayed variant of ``depth-inpainted`` with ``method`` (as :meth:`RunRecord.display_variant`)."""
+    if method is None:
+        return None
+    return RunRecord("-", "depth-inpainted", 0, inpaint_method=method).display_variant()
+
+
 def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str = DEFAULT_TITLE,
-                            trajectories: bool = True, external: Sequence[str] = ()) -> Comparison:
+                            trajectories: bool = True, external: Sequence[str] = (),
+                            after_method: str | None = None) -> Comparison:
     """Build the comparison report of every run record under ``runs_dir`` (plus the ``external`` TUM specs,
     ``NAME[@SEQUENCE]=path``) and write ``report.md``, ``report.html``, ``summary.json`` and ``figures/`` into
     ``out`` (default ``runs_dir/report``), each atomically. Duplicate runs are collapsed with a warning on stderr.
+    ``after_method``: the inpainting method of Table 2's "after" (default: the paper's when it ran).
 
     Raises:
         AgrivioError: no folder, no run records, a conflicting duplicate, a bad external spec.
@@ -212,7 +221,7 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
         evaluations, more = load_evaluations(found)
         notes += more
     report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=title, notes=notes,
-                          sections=[section] if section else [])
+                          sections=[section] if section else [], after=_after_variant(after_method))
     fig_dir = out / "figures"
     for fig in report.figures:
         with atomic_path(fig_dir / f"{fig.name}.png", suffix=".png") as tmp:

@@ -163,12 +163,17 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
                             checked.quality)
 
 
-def plan_jobs(prepared: PreparedSequence, variants: Sequence[str], seeds: Sequence[int], out_dir: Path) -> list[Job]:
-    """One job per variant × seed; each carries its input key (and only the options that apply to it)."""
+def plan_jobs(prepared: PreparedSequence, variants: Sequence[str], seeds: Sequence[int], out_dir: Path,
+              folder_suffix: str = "") -> list[Job]:
+    """One job per variant × seed; each carries its input key (and only the options that apply to it).
+
+    Run folders are ``OUT/<sequence>/<variant><folder_suffix>/seed<k>``; a suffix keeps the runs of a second
+    inpainting method (e.g. ``-telea``) beside those of the first.
+    """
     jobs = []
     for variant in variants:
         for seed in seeds:
-            folder = out_dir / prepared.name / variant / f"seed{seed}"
+            folder = out_dir / prepared.name / f"{variant}{folder_suffix}" / f"seed{seed}"
             options = prepared.inputs.to_options()
             if variant != "depth-inpainted":
                 options.pop("inpaint_method")
@@ -219,21 +224,25 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
                cache_root: Path, inpaint_method: str = "paper", msckf_config: str | None = None,
                executor: str = "local", workers: int | None = None, ray_address: str | None = None,
                max_frames: int | None = None, progress: bool = True, keep_going: bool = False,
-               keep_failed: bool = False) -> list[dict[str, Any]]:
+               keep_failed: bool = False, extra_inpaint_methods: Sequence[str] = ()) -> list[dict[str, Any]]:
     """Check every input, prepare every sequence, then run every (sequence, variant, seed) job; return the records.
 
     Options, the MSCKF config and every sequence's inputs are checked first, before any depth, inpainting or VIO
     work. ``keep_going`` (batches): a sequence whose inputs are refused (or whose depth stage fails on bad data)
     is recorded as failed runs with the reason and the others go on; otherwise the error is raised. Failed records
-    are retried unless ``keep_failed``.
+    are retried unless ``keep_failed``. ``extra_inpaint_methods``: more methods of ``depth-inpainted`` (when that
+    variant is asked for), run in ``OUT/<sequence>/depth-inpainted-<method>/``; all jobs run as one matrix.
     """
     from inpaint import METHODS
 
     check_variants(variants)
     check_positive_int("max_frames", max_frames)
     check_positive_int("workers", workers)
-    if "depth-inpainted" in variants and inpaint_method not in METHODS:
-        raise AgrivioError(f"unknown inpainting method {inpaint_method!r}; available: {', '.join(sorted(METHODS))}")
+    extra = [m for m in dict.fromkeys(extra_inpaint_methods) if m != inpaint_method] \
+        if "depth-inpainted" in variants else []
+    for method in ([inpaint_method] if "depth-inpainted" in variants else []) + extra:
+        if method not in METHODS:
+            raise AgrivioError(f"unknown inpainting method {method!r}; available: {', '.join(sorted(METHODS))}")
     check_msckf_config(msckf_config)
     check_output_dir(out_dir)
     user_errors = user_error_types()
@@ -258,8 +267,20 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
             print(f"agrivio: sequence {c.spec.source} failed: {exc}", file=sys.stderr)
             failed += _failed_sequence_records(c.spec, f"{type(exc).__name__}: {exc}", variants, seeds, out_dir)
             continue
-        write_sequence_manifest(prepared, out_dir)
         jobs += plan_jobs(prepared, variants, seeds, out_dir)
+        for method in extra:
+            try:
+                more = prepare_sequence(c.spec, ["depth-inpainted"], cache_root, method, msckf_config, max_frames,
+                                        progress, checked=c)
+            except user_errors as exc:
+                if not keep_going:
+                    raise
+                print(f"agrivio: sequence {c.spec.source} failed ({method}): {exc}", file=sys.stderr)
+                continue
+            prepared.depth_stats[f"inpainted_frames[{method}]"] = more.depth_stats.get("inpainted_frames")
+            prepared.stage_timings[f"inpaint_s[{method}]"] = more.stage_timings.get("inpaint_s", 0.0)
+            jobs += plan_jobs(more, ["depth-inpainted"], seeds, out_dir, folder_suffix=f"-{method}")
+        write_sequence_manifest(prepared, out_dir)
     records = run_jobs(jobs, run_job, executor=executor, workers=workers, ray_address=ray_address,
                        progress=progress, keep_failed=keep_failed) if jobs else []
     return records + failed

@@ -110,3 +110,31 @@ def test_demo_command_small(sim_cache, tmp_path, monkeypatch, capsys):
     assert "report:" in printed and "replay:" in printed
     assert (out / "report" / "report.html").is_file()
     assert (out / "replay" / "tiny.rrd").is_file()
+
+
+def test_experiment_command_two_methods_one_matrix_and_resumes(sim_cache, tmp_path, monkeypatch, capsys):
+    """`agrivio experiment` runs depth-inpainted with each method beside the others (the first is Table 2's
+    "after"), in one matrix; started again with the same arguments it recomputes nothing."""
+    monkeypatch.setenv("AGRIVIO_CACHE", str(sim_cache))
+    out = tmp_path / "exp"
+    argv = ["experiment", "--scale", "demo", "--duration", "3", "--presets", "tiny", "--runs", "1",
+            "--variants", "depth-raw,depth-inpainted", "--methods", "telea,ns", "--out", str(out), "--workers", "1"]
+    assert main(argv) == 0
+    folders = sorted(p.parent.parent.name for p in out.glob("tiny/*/seed0/record.json"))
+    assert folders == ["depth-inpainted", "depth-inpainted-ns", "depth-raw"]
+    methods = {json.loads(p.read_text())["inpaint_method"] for p in out.glob("tiny/depth-inpainted*/seed0/record.json")}
+    assert methods == {"telea", "ns"}
+    md = (out / "report" / "report.md").read_text()
+    assert "depth-inpainted[ns]" in md and "depth-inpainted[telea]" in md
+    assert "inpainting method `telea`" in md  # Table 2 compares the first method
+    stamps = {p: p.stat().st_mtime_ns for p in out.glob("tiny/*/seed0/record.json")}
+    capsys.readouterr()
+    assert main(argv) == 0
+    assert {p: p.stat().st_mtime_ns for p in out.glob("tiny/*/seed0/record.json")} == stamps
+
+
+def test_experiment_refuses_bad_options(capsys):
+    assert main(["experiment", "--runs", "0", "--presets", "tiny"]) == 2
+    assert "--runs" in capsys.readouterr().err
+    assert main(["experiment", "--presets", "tiny", "--methods", "nope", "--duration", "3"]) == 2
+    assert "unknown inpainting method 'nope'" in capsys.readouterr().err

@@ -131,8 +131,9 @@ def test_rpe_modes_and_drift() -> None:
 
 
 def test_default_rpe_distances() -> None:
-    assert default_rpe_distances(500.0) == (10.0, 20.0, 50.0)
-    assert default_rpe_distances(50.0) == (10.0, 20.0)
+    assert default_rpe_distances(500.0) == (10.0, 50.0, 100.0)
+    assert default_rpe_distances(100.0) == (10.0, 50.0)  # 100 m segments need ≥ 133 m of path
+    assert default_rpe_distances(50.0) == (10.0,)
     assert default_rpe_distances(12.34) == (1.23, 2.46, 3.7, 4.93, 6.17)
     assert default_rpe_distances(0.0) == ()
 
@@ -147,5 +148,5 @@ def test_evaluation_metrics_are_json_ready_and_deterministic() -> None:
     m2 = evaluate(gps, est, EvalOptions(align="posyaw")).metrics()
     assert json.dumps(m1, sort_keys=True) == json.dumps(m2, sort_keys=True)
     assert m1["n_pairs"] == len(gt) and "ate_rot_rmse_deg" not in m1
-    assert set(m1["rpe"]) == {"10", "20"}  # 60 m path: 50 m segments do not fit
+    assert set(m1["rpe"]) == {"10"}  # 60 m path: 50 m segments (> ¾ of it) are not evaluated
     assert m1["rpe"]["10"]["mode"] == "displacement" and m1["drift_pct"] > 0

@@ -251,3 +251,28 @@ def test_variants_table_gives_ate_as_a_share_of_the_distance_driven():
     col = header.index("ATE RMSE (% of distance)")
     rows = {r[1]: r for r in body}
     assert rows["stereo"][col] == "0.60 %" and rows["depth-raw"][col] == "–"
+
+
+def test_long_sequence_rpe_table_per_distance_and_its_report_section() -> None:
+    from eval.rpe_table import rpe_table
+
+    def rec(variant: str, seed: int, e10: float, e50: float | None) -> RunRecord:
+        rpe = {"10": {"delta_m": 10.0, "trans_rmse_m": e10, "drift_mean_pct": 10 * e10}}
+        if e50 is not None:
+            rpe["50"] = {"delta_m": 50.0, "trans_rmse_m": e50, "drift_mean_pct": 2 * e50}
+        return RunRecord("field", variant, seed, metrics={"ate_rmse_m": 1.0, "ate_mean_m": 0.9, "rpe": rpe,
+                                                          "ref_path_length_m": 120.0 + seed})
+    records = [rec("depth-raw", 0, 0.2, 1.0), rec("depth-raw", 1, 0.4, 1.4), rec("stereo", 0, 0.1, None),
+               RunRecord("field", "stereo", 1, status="failed", failure_reason="diverged")]
+    header, body = rpe_table(records)
+    assert header[-2:] == ["RPE 10 m (m, drift %)", "RPE 50 m (m, drift %)"]  # no run reached 100 m segments
+    rows = {r[1]: r for r in body}
+    assert rows["depth-raw"][2:] == ["2", "120", "0.300 ± 0.141 (3.00 %)", "1.200 ± 0.283 (2.40 %)"]
+    assert rows["stereo"][2:] == ["1", "120", "0.100 (1.00 %)", "–"]  # the failed run is not a sample
+    md = build_report(records).markdown("figures")
+    assert "## Relative pose error over distance" in md and "0.300 ± 0.141 (3.00 %)" in md
+    # short clips (RPE only at fractions of their path) get no such table
+    assert rpe_table([_rec("s", "stereo", 0, 0.1)]) is not None  # 10 m present in _rec
+    short = RunRecord("s", "stereo", 0, metrics={"ate_rmse_m": 0.1, "rpe": {"0.4": {"delta_m": 0.4,
+                                                                                   "trans_rmse_m": 0.01}}})
+    assert rpe_table([short]) is None

@@ -86,6 +86,10 @@ class RouteConfig:
         stop_s: duration of each stop, seconds.
         lateral_wander_m: standard deviation of slow lateral steering wander, metres.
         yaw_wander_deg: standard deviation of slow heading wander, degrees.
+        speed_changes: cruise-speed factors of the successive straight passes, cycled (pass ``k`` drives at
+            ``speed_mps · speed_changes[k % len]``); empty: every pass at ``speed_mps``. The robot's operator
+            changes speed between rows; the factor of the first pass should be 1.0 so that short clips of a
+            preset do not depend on it.
     """
 
     kind: str = "rows"
@@ -102,6 +106,16 @@ class RouteConfig:
     stop_s: float = 3.0
     lateral_wander_m: float = 0.03
     yaw_wander_deg: float = 0.6
+    speed_changes: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "speed_changes", tuple(float(f) for f in self.speed_changes))
+        if any(not f > 0 for f in self.speed_changes):
+            raise ValueError(f"route.speed_changes must be factors > 0, got {self.speed_changes}")
+
+    def max_speed_factor(self) -> float:
+        """The largest cruise-speed factor of any pass (1.0 without speed changes)."""
+        return max(self.speed_changes, default=1.0)
 
 
 @dataclass(frozen=True)

@@ -121,11 +121,18 @@ def _sample_route(segs: list[Segment], ds: float) -> tuple[np.ndarray, ...]:
 
 
 def speed_profile(s: np.ndarray, is_turn: np.ndarray, cfg: SimConfig, stops_s: np.ndarray) -> np.ndarray:
-    """Speed (m/s) along the route: cruise on straights, turn speed in turns (reached before them), zero at stops,
-    accelerations bounded by ``route.accel_mps2`` (forward/backward passes), zero at the start."""
+    """Speed (m/s) along the route: cruise on straights (times the pass's ``route.speed_changes`` factor), turn
+    speed in turns (reached before them), zero at stops, accelerations bounded by ``route.accel_mps2``
+    (forward/backward passes), zero at the start."""
     r = cfg.route
     ds = s[1] - s[0]
-    target = np.where(is_turn, r.turn_speed_mps, r.speed_mps)
+    cruise = np.full(s.size, r.speed_mps)
+    if r.speed_changes:
+        # pass k: the k-th straight stretch (a new one starts where a turn ends)
+        starts = np.concatenate([[0], (is_turn[:-1] & ~is_turn[1:]).astype(np.int64)])
+        factors = np.asarray(r.speed_changes)
+        cruise = r.speed_mps * factors[np.cumsum(starts) % factors.size]
+    target = np.where(is_turn, r.turn_speed_mps, cruise)
     for sp in stops_s:
         target[np.argmin(np.abs(s - sp))] = 0.0
     v = target.copy()
@@ -213,7 +220,7 @@ class RobotTrajectory:
         n = int(np.ceil((self.duration + 1.0) / dt)) + 12
         tk = (np.arange(n) - 6) * dt  # control-point times (a few before 0 and after the end)
         # ---- plan: route sampled at 5 cm, speed profile, time parameterisation ------------------------------------
-        route_len = max(r.speed_mps, 0.1) * self.duration + 20.0
+        route_len = max(r.speed_mps * r.max_speed_factor(), 0.1) * self.duration + 20.0
         segs = plan_route(cfg, route_len)
         s, x, y, hd, turn = _sample_route(segs, 0.05)
         stops = np.zeros(0)
