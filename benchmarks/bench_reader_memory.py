@@ -7,6 +7,12 @@ images are smooth procedural patterns (so a 5,000-frame bag takes well under 1 G
 image still decodes to its full 756 kB in memory. Bags go to the cache dir and are deleted unless ``--keep``.
 
     .venv/bin/python benchmarks/bench_reader_memory.py [--long 5000] [--short 100] [--keep] [--json PATH]
+
+``--whole-run PRESET --durations 10 120 [--variants stereo,depth-raw]`` measures a whole run instead: the preset is
+simulated at each duration (cached), its depth cache filled, then each variant runs once (seed 0) in a fresh child
+process, in the pipeline's own code path (``run_matrix``, serial executor: checks, bag decode, depth read, VIO,
+evaluation, record writing); the child reports its peak RSS (``VmHWM``). Flat memory means the peak does not grow
+with the duration.
 """
 
 from __future__ import annotations
@@ -91,16 +97,77 @@ def child(bag: Path) -> None:
                       "peak_rss_mb": peak, "s_per_frame": t_frames / max(frames, 1), "checksum": checksum}))
 
 
+def whole_run_child(preset: str, duration_s: float, variant: str, out: Path) -> None:
+    """One run of ``variant`` on ``preset`` (caches warm) in this process; print a JSON line with peak RSS (MB)."""
+    from pipeline.run_sequence import SequenceSpec, run_matrix
+
+    t0 = time.perf_counter()
+    records = run_matrix([SequenceSpec(preset, duration_s=duration_s)], [variant], [0], out, cache_dir(),
+                         inpaint_method="telea", executor="serial", progress=False)
+    rec = records[0]
+    frames = rec.get("frames", (rec.get("extra") or {}).get("frames"))
+    print(json.dumps({"status": rec.get("status"), "frames": frames,
+                      "wall_s": time.perf_counter() - t0, "peak_rss_mb": _status_mb("VmHWM")}))
+
+
+def whole_run(preset: str, durations: list[float], variants: list[str], json_path: Path) -> None:
+    """Peak RSS of a whole run per (duration, variant); table + JSON (see the module docstring)."""
+    import tempfile
+
+    from pipeline.run_sequence import SequenceSpec, check_sequence, prepare_sequence
+
+    results = []
+    for duration in durations:
+        spec = SequenceSpec(preset, duration_s=duration)
+        need = [v for v in variants if v != "odometry"] or ["stereo"]
+        prepare_sequence(spec, need, cache_dir(), inpaint_method="telea",
+                         checked=check_sequence(spec, need, cache_dir(), progress=True))
+        for variant in variants:
+            with tempfile.TemporaryDirectory(dir=cache_dir()) as tmp:
+                proc = subprocess.run([sys.executable, __file__, "--run-child", preset, str(duration), variant,
+                                       tmp], capture_output=True, text=True, check=True)
+            res = json.loads(proc.stdout.strip().splitlines()[-1])
+            res.update(preset=preset, duration_s=duration, variant=variant)
+            results.append(res)
+            print(f"{preset} {duration:g} s {variant}: peak RSS {res['peak_rss_mb']:.0f} MB, {res['frames']} frames, "
+                  f"{res['wall_s']:.0f} s ({res['status']})", flush=True)
+    print(f"\n{'variant':<16} " + " ".join(f"{f'{d:g} s (MB)':>12}" for d in durations) + f" {'growth MB/1000 frames':>22}")
+    for variant in variants:
+        rows = [r for r in results if r["variant"] == variant]
+        peaks = [r["peak_rss_mb"] for r in rows]
+        frames = [r["frames"] or 0 for r in rows]
+        slope = (peaks[-1] - peaks[0]) / max(frames[-1] - frames[0], 1) * 1000 if len(rows) > 1 else float("nan")
+        print(f"{variant:<16} " + " ".join(f"{p:>12.0f}" for p in peaks) + f" {slope:>22.1f}")
+    write_json_atomic(json_path, {"whole_run": results})
+    print(f"wrote {json_path}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--long", type=int, default=5000, help="stereo frames of the long bag")
     ap.add_argument("--short", type=int, default=100, help="stereo frames of the short bag")
     ap.add_argument("--keep", action="store_true", help="keep the generated bags in the cache dir")
     ap.add_argument("--json", type=Path, default=cache_dir() / "benchmarks" / "bench_reader_memory.json")
+    ap.add_argument("--whole-run", metavar="PRESET", default=None,
+                    help="measure whole runs on this simulator preset instead of the reader (see the description)")
+    ap.add_argument("--durations", type=float, nargs="+", default=[10.0, 120.0],
+                    help="simulated seconds of the whole-run sequences (default 10 120)")
+    ap.add_argument("--variants", default="stereo,depth-raw", help="whole-run variants (default stereo,depth-raw)")
     ap.add_argument("--child", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--run-child", nargs=4, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child(args.child)
+        return
+    if args.run_child:
+        preset, duration, variant, out = args.run_child
+        whole_run_child(preset, float(duration), variant, Path(out))
+        return
+    if args.whole_run:
+        json_path = args.json if args.json != ap.get_default("json") else \
+            cache_dir() / "benchmarks" / "bench_run_memory.json"
+        whole_run(args.whole_run, sorted(args.durations), [v.strip() for v in args.variants.split(",") if v.strip()],
+                  json_path)
         return
 
     folder = cache_dir() / "bench"
