@@ -80,6 +80,13 @@ FLAT_KEYS: dict[str, str] = {
 }
 
 
+#: The group types of :class:`MsckfConfig`, by attribute name.
+GROUPS: dict[str, type] = {"window": WindowOptions, "imu_noise": ImuNoise, "propagation": PropagationOptions,
+                           "init": InitOptions, "update": UpdateOptions, "depth": DepthOptions,
+                           "triangulation": TriangulationParams, "health": HealthOptions,
+                           "frontend": FrontendConfig}
+
+
 @dataclass(frozen=True)
 class MsckfConfig:
     """Every parameter of the VIO, one option group per component (field docs and units in each group).
@@ -138,13 +145,6 @@ class MsckfConfig:
             out[group][name] = flat[name]
         out["frontend"] = flat["frontend"]
         return out
-
-
-#: The group types of :class:`MsckfConfig`, by attribute name.
-GROUPS: dict[str, type] = {"window": WindowOptions, "imu_noise": ImuNoise, "propagation": PropagationOptions,
-                           "init": InitOptions, "update": UpdateOptions, "depth": DepthOptions,
-                           "triangulation": TriangulationParams, "health": HealthOptions,
-                           "frontend": FrontendConfig}
 
 
 def _read(source: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], str]:
