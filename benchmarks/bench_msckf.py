@@ -34,7 +34,7 @@ import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from msckf.config import MsckfConfig  # noqa: E402
+from msckf.config import MsckfConfig, load_config  # noqa: E402
 from msckf.filter import MsckfFilter  # noqa: E402
 from msckf.rotation import so3_exp, so3_log  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
@@ -48,7 +48,7 @@ WARMUP_FRAMES = 25
 def _config(**kw) -> MsckfConfig:
     args = dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, velocity_cov=1e-3)
     args.update(kw)
-    return MsckfConfig(**args)
+    return load_config(args)
 
 
 def _run(world, cfg):

@@ -21,10 +21,10 @@ from msckf.config import MsckfConfig
 from msckf.camera import check_transform
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
-from msckf.propagation import ImuNoise, propagate_samples
+from msckf.propagation import propagate_samples
 from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
 from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
-from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
+from msckf.triangulation import initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, downweight_features,
                           ekf_update_information, find_redundant_clones, gating_chi2, inject_correction,
@@ -37,9 +37,9 @@ __all__ = ["MsckfFilter", "FrameStats"]
 class FrameStats:
     """What the filter did with one image (for logs, replay and benchmarks). Times in seconds.
 
-    ``over_budget``: the back end took longer than one image period (1 / ``config.frame_rate``), as msckf_vio
-    warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature that was
-    gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
+    ``over_budget``: the back end took longer than one image period (1 / ``config.health.frame_rate``), as
+    msckf_vio warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature
+    that was gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
     """
 
     stamp_s: float = 0.0
@@ -85,7 +85,7 @@ class MsckfFilter:
         T_cam1_cam0: (4, 4) maps cam0 points into cam1 (Kalibr ``cam1/T_cn_cnm1``); fixed.
 
     Use :meth:`feed_imu` for every IMU sample and :meth:`feed_features` for every image, in time order.
-    The filter initialises itself from the first ``config.init_imu_samples`` IMU samples (static start),
+    The filter initialises itself from the first ``config.init.init_imu_samples`` IMU samples (static start),
     or explicitly with :meth:`initialize`.
     """
 
@@ -97,11 +97,9 @@ class MsckfFilter:
         self._p_i_c0 = -self._R_c_i0.T @ T_ci[:3, 3]
         self.R_c1_c0 = orthonormalize(T_10[:3, :3])
         self.t_c1_c0 = T_10[:3, 3].copy()
-        self.noise = ImuNoise(config.gyro_noise, config.gyro_bias_noise, config.acc_noise, config.acc_bias_noise)
-        self.tri_params = TriangulationParams(config.huber_epsilon, config.estimation_precision,
-                                              config.initial_damping, config.outer_loop_max_iteration,
-                                              config.inner_loop_max_iteration)
-        self.clones = CloneStore(config.max_cam_state_size + 2)
+        self.noise = config.imu_noise
+        self.tri_params = config.triangulation
+        self.clones = CloneStore(config.window.max_cam_state_size + 2)
         self.features = FeatureStore(self.clones.capacity)
         self.state: ImuState | None = None
         self.P = np.zeros((0, 0))
@@ -140,7 +138,7 @@ class MsckfFilter:
             raise MsckfInputError("initialize: R_world_imu must be a 3x3 rotation matrix")
         self.state = ImuState(time=float(t_s), R_w_i=orthonormalize(R),
                               p=np.array(p_world if p_world is not None else z3, dtype=np.float64),
-                              v=np.array(v_world if v_world is not None else self.config.initial_velocity,
+                              v=np.array(v_world if v_world is not None else self.config.init.initial_velocity,
                                          dtype=np.float64),
                               b_g=np.array(gyro_bias if gyro_bias is not None else z3, dtype=np.float64),
                               b_a=np.array(acc_bias if acc_bias is not None else z3, dtype=np.float64),
@@ -182,16 +180,15 @@ class MsckfFilter:
         self._imu_t.append(t)
         self._imu_w.append(w)
         self._imu_a.append(a)
-        if self.state is None and len(self._imu_t) >= self.config.init_imu_samples:
+        if self.state is None and len(self._imu_t) >= self.config.init.init_imu_samples:
             self._static_init()
 
     def _static_init(self) -> None:
-        c = self.config
-        n = c.init_imu_samples
+        init = self.config.init
+        n = init.init_imu_samples
         try:
             res = static_initialize(np.asarray(self._imu_t[:n]), np.asarray(self._imu_w[:n]),
-                                    np.asarray(self._imu_a[:n]), c.init_max_gyro_std, c.init_max_gyro_mean,
-                                    c.init_max_acc_std, c.init_max_acc_drift, c.init_max_gyro_drift)
+                                    np.asarray(self._imu_a[:n]), init)
         except MsckfInputError:
             # Slide the window by half, so a caller that catches the error and keeps feeding gets a new try.
             del self._imu_t[:n // 2], self._imu_w[:n // 2], self._imu_a[:n // 2]
@@ -202,9 +199,7 @@ class MsckfFilter:
         self.initialize(res.t_end, res.R_w_i, gyro_bias=res.gyro_bias, gravity_norm=res.gravity_norm)
 
     def _initial_cov(self) -> np.ndarray:
-        c = self.config
-        return initial_covariance(c.velocity_cov, c.gyro_bias_cov, c.acc_bias_cov, c.extrinsic_rotation_cov,
-                                  c.extrinsic_translation_cov)
+        return initial_covariance(self.config.init)
 
     def _drop_imu_before(self, t: float) -> None:
         i = 0
@@ -221,7 +216,7 @@ class MsckfFilter:
         Raises:
             MsckfInputError: malformed observations or a stamp not after the previous image.
             FilterDivergedError: the state became non-finite, the covariance lost positive definiteness or the
-                speed exceeded ``config.max_speed``.
+                speed exceeded ``config.health.max_speed``.
         """
         if not isinstance(obs, FeatureObservations):
             raise MsckfInputError(f"feed_features expects FeatureObservations, got {type(obs).__name__}")
@@ -266,7 +261,7 @@ class MsckfFilter:
         st.n_clones = len(self.clones)
         st.n_map = self.features.n_alive
         tm["total"] = time.perf_counter() - t0
-        st.over_budget = tm["total"] > 1.0 / self.config.frame_rate
+        st.over_budget = tm["total"] > 1.0 / self.config.health.frame_rate
         self.last_stats = st
         return pose
 
@@ -281,14 +276,14 @@ class MsckfFilter:
             ac = np.asarray(self._imu_a[:i])
             keep = times > st.time
             self.P = propagate_samples(st, self.P, times[keep], gy[keep], ac[keep], self.noise, self.g_w,
-                                       self.config.observability_constrained)
+                                       self.config.propagation.observability_constrained)
             self._last_imu = (self._imu_t[i - 1], self._imu_w[i - 1], self._imu_a[i - 1])
             del self._imu_t[:i], self._imu_w[:i], self._imu_a[:i]
-        if self.config.propagate_to_image_time and self._last_imu is not None and st.time < stamp:
+        if self.config.propagation.propagate_to_image_time and self._last_imu is not None and st.time < stamp:
             # Hold the latest sample over the rest of the interval so the clone sits exactly at the image time.
             _, w, a = self._last_imu
             self.P = propagate_samples(st, self.P, np.array([stamp]), w[None], a[None], self.noise, self.g_w,
-                                       self.config.observability_constrained)
+                                       self.config.propagation.observability_constrained)
 
     def _add_observations(self, obs: FeatureObservations, slot: int, st: FrameStats) -> float:
         fs = self.features
@@ -347,16 +342,18 @@ class MsckfFilter:
         slots = order[cols]
         rr = rows[:, None]
         has_cam1 = np.isfinite(fs.obs[rr, slots, 2]) & valid
-        if self.config.depth_row:
+        dep = self.config.depth
+        if dep.depth_row:
             # With inverse-depth rows, a depth-map observation gives the track a usable depth only if its σ is
             # small: a filled depth with a 15 % σ does not make a short, low-parallax track observable.
             dm = fs.src[rr, slots] == DepthSource.DEPTH_MAP
             depth = fs.depth[rr, slots]
-            rel = inverse_depth_sigma(depth, fs.depth_sigma[rr, slots], self.config.depth_inv_sigma,
-                                      self.config.depth_rel_sigma) * depth
-            has_cam1 = np.where(dm, valid & (rel <= self.config.depth_motion_rel_sigma), has_cam1)
+            rel = inverse_depth_sigma(depth, fs.depth_sigma[rr, slots], dep.depth_inv_sigma,
+                                      dep.depth_rel_sigma) * depth
+            has_cam1 = np.where(dm, valid & (rel <= dep.depth_motion_rel_sigma), has_cam1)
         any_cam1 = np.any(has_cam1, axis=1)
-        thr = np.where(any_cam1, self.config.feature_translation_threshold, self.config.mono_translation_threshold)
+        tri = self.tri_params
+        thr = np.where(any_cam1, tri.feature_translation_threshold, tri.mono_translation_threshold)
         return np.linalg.norm(orth, axis=1) > thr
 
     def _triangulate(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
@@ -375,25 +372,26 @@ class MsckfFilter:
             v_i = valid[idx]
             obs = fs.obs[r_i[:, None], slots]
             depth_inv = depth_w = None
-            if self.config.depth_row:
+            dep = self.config.depth
+            if dep.depth_row:
                 # Depth enters as a σ-weighted inverse-depth residual, not as a virtual right-camera pixel.
                 dm = (fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP) & v_i
                 obs = obs.copy()
                 obs[..., 2:4] = np.where(dm[..., None], np.nan, obs[..., 2:4])
                 depth = np.where(dm, fs.depth[r_i[:, None], slots], np.nan)
-                sig = inverse_depth_sigma(depth, fs.depth_sigma[r_i[:, None], slots], self.config.depth_inv_sigma,
-                                          self.config.depth_rel_sigma)
+                sig = inverse_depth_sigma(depth, fs.depth_sigma[r_i[:, None], slots], dep.depth_inv_sigma,
+                                          dep.depth_rel_sigma)
                 k_, n_ = depth.shape
                 depth_inv = np.full((k_, 2 * n_), np.nan)
                 depth_w = np.full((k_, 2 * n_), np.nan)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     depth_inv[:, 0::2] = 1.0 / depth
-                    depth_w[:, 0::2] = self.config.feature_noise / sig
+                    depth_w[:, 0::2] = self.config.update.feature_noise / sig
             R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], obs, v_i, self.R_c1_c0,
                                                     self.t_c1_c0)
             a_slot = slots[np.arange(len(idx)), anchor]
-            a_depth = fs.depth[r_i, a_slot] if self.config.depth_seed else None
-            x0 = initial_guess(R, t, z, vv, 2 * anchor, a_depth, self.tri_params.fallback_inverse_depth)
+            a_depth = fs.depth[r_i, a_slot] if dep.depth_seed else None
+            x0 = initial_guess(R, t, z, vv, 2 * anchor, a_depth)
             p_a, good, _ = triangulate_batch(R, t, z, vv, x0, self.tri_params, depth_inv, depth_w)
             p_w = np.einsum("kij,kj->ki", cl.R_w_c[a_slot], p_a) + cl.p[a_slot]
             gr = r_i[good]
@@ -405,9 +403,7 @@ class MsckfFilter:
 
     def _measurement_spec(self) -> MeasurementSpec:
         c = self.config
-        return MeasurementSpec(self.R_c1_c0, self.t_c1_c0, self.g_w, c.feature_noise,
-                               c.observability_constrained, c.depth_row, c.depth_inv_sigma, c.depth_rel_sigma,
-                               c.depth_gate_sigma)
+        return MeasurementSpec.from_options(self.R_c1_c0, self.t_c1_c0, self.g_w, c.update, c.depth, c.propagation)
 
     def _batch(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec) -> FeatureBatch:
         """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order)."""
@@ -421,13 +417,13 @@ class MsckfFilter:
         b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
                                cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
-        return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.track_drift_psd)
+        return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""
         if len(rows) == 0:
             return 0
-        c = self.config
+        c = self.config.update
         spec = self._measurement_spec()
         sigma = c.feature_noise
         n_cl = len(self.clones)
@@ -514,12 +510,11 @@ class MsckfFilter:
         fs.remove(lost)
 
     def _prune(self, tracking_rate: float, st: FrameStats) -> None:
-        c = self.config
+        window = self.config.window
         cl, fs = self.clones, self.features
-        if len(cl) < c.max_cam_state_size:
+        if len(cl) < window.max_cam_state_size:
             return
-        rm = find_redundant_clones(cl, c.rotation_threshold, c.translation_threshold, tracking_rate,
-                                   c.tracking_rate_threshold)
+        rm = find_redundant_clones(cl, window, tracking_rate)
         order = self._order()
         rm_pos = cl.position_in_order(np.asarray(rm))
         alive = fs.alive_rows()
@@ -554,8 +549,9 @@ class MsckfFilter:
         if not np.all(np.isfinite(self.P)):
             raise FilterDivergedError("non-finite covariance", stamp)
         speed = float(np.linalg.norm(s.v))
-        if speed > self.config.max_speed:
-            raise FilterDivergedError(f"speed {speed:.1f} m/s exceeds max_speed {self.config.max_speed:g} m/s",
+        max_speed = self.config.health.max_speed
+        if speed > max_speed:
+            raise FilterDivergedError(f"speed {speed:.1f} m/s exceeds max_speed {max_speed:g} m/s",
                                       stamp)
         d = np.diag(self.P)
         scale = max(1.0, float(d.max()))
@@ -573,7 +569,7 @@ class MsckfFilter:
                             cov_diag=np.diag(self.P)[:IMU_DIM].copy())
 
     def _online_reset(self) -> bool:
-        thr = self.config.position_std_threshold
+        thr = self.config.health.position_std_threshold
         if thr <= 0:
             return False
         std = np.sqrt(np.maximum(np.diag(self.P)[12:15], 0.0))

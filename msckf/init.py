@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from msckf.errors import MsckfInputError
+from msckf.options import InitOptions
 from msckf.rotation import from_two_vectors
 
 __all__ = ["NonStaticStartError", "StaticInit", "static_initialize"]
@@ -47,18 +48,20 @@ class StaticInit:
     acc_std: np.ndarray
 
 
-def static_initialize(t_s: np.ndarray, gyro: np.ndarray, acc: np.ndarray, max_gyro_std: float,
-                      max_gyro_mean: float, max_acc_std: float, max_acc_drift: float,
-                      max_gyro_drift: float = 0.05) -> StaticInit:
+def static_initialize(t_s: np.ndarray, gyro: np.ndarray, acc: np.ndarray, options: InitOptions) -> StaticInit:
     """Initialise gravity direction and gyro bias from a window of IMU samples taken at rest.
 
     Args:
         t_s: (N,) stamps, s. gyro: (N, 3) rad/s, IMU frame. acc: (N, 3) specific force, m/s², IMU frame.
-        max_gyro_std, max_gyro_mean, max_acc_std, max_acc_drift, max_gyro_drift: static-start tests (see module
-            doc); rad/s and m/s².
+        options: the static-start limits ``init_max_gyro_std``, ``init_max_gyro_mean`` (rad/s),
+            ``init_max_acc_std``, ``init_max_acc_drift`` (m/s²), ``init_max_gyro_drift`` (rad/s); see the module
+            doc. (The window length ``init_imu_samples`` is the caller's: N = len(gyro).)
     Raises:
         NonStaticStartError: the window shows motion; the message gives the measured values and limits.
     """
+    max_gyro_std, max_gyro_mean = options.init_max_gyro_std, options.init_max_gyro_mean
+    max_acc_std, max_acc_drift = options.init_max_acc_std, options.init_max_acc_drift
+    max_gyro_drift = options.init_max_gyro_drift
     gyro = np.asarray(gyro, dtype=np.float64)
     acc = np.asarray(acc, dtype=np.float64)
     n = len(gyro)

@@ -15,30 +15,14 @@ S-MSCKF's process model (msckf.md §1.3–1.4), in the conventions of :mod:`msck
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from msckf.options import ImuNoise
 from msckf.rotation import orthonormalize, skew, skew3, so3_exp3
 from msckf.state import IMU_DIM, ImuState
 
 __all__ = ["ImuNoise", "rk4_nominal", "error_jacobian_F", "transition_matrix", "process_noise",
            "oc_modify_transition", "propagate_samples"]
-
-
-@dataclass(frozen=True)
-class ImuNoise:
-    """Continuous-time IMU noise σ's: gyro (rad/s/√Hz), gyro bias walk (rad/s²/√Hz), acc (m/s²/√Hz),
-    acc bias walk (m/s³/√Hz)."""
-
-    gyro: float
-    gyro_bias: float
-    acc: float
-    acc_bias: float
-
-    def diag12(self) -> np.ndarray:
-        """diag(Q_c) for the noise vector [n_g, n_wg, n_a, n_wa], (12,)."""
-        return np.repeat([self.gyro**2, self.gyro_bias**2, self.acc**2, self.acc_bias**2], 3)
 
 
 def rk4_nominal(R_w_i: np.ndarray, v: np.ndarray, p: np.ndarray, gyro: np.ndarray, acc: np.ndarray,

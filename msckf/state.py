@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from msckf.options import InitOptions
+
 IMU_DIM = 21
 CLONE_DIM = 6
 TH, BG, VEL, BA, POS, EXT_R, EXT_P = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
@@ -207,15 +209,15 @@ class FeatureStore:
         return self._rows_sorted.copy()
 
 
-def initial_covariance(velocity_cov: float, gyro_bias_cov: float, acc_bias_cov: float,
-                       extrinsic_rotation_cov: float, extrinsic_translation_cov: float) -> np.ndarray:
-    """The 21×21 initial (and reset) covariance of S-MSCKF: zero for θ and p (they define the world frame)."""
+def initial_covariance(options: InitOptions) -> np.ndarray:
+    """The 21×21 initial (and reset) covariance of S-MSCKF: zero for θ and p (they define the world frame); the
+    variances of v, b_g, b_a and the extrinsics are ``options.velocity_cov`` … ``extrinsic_translation_cov``."""
     P = np.zeros((IMU_DIM, IMU_DIM))
     d = np.zeros(IMU_DIM)
-    d[BG] = gyro_bias_cov
-    d[VEL] = velocity_cov
-    d[BA] = acc_bias_cov
-    d[EXT_R] = extrinsic_rotation_cov
-    d[EXT_P] = extrinsic_translation_cov
+    d[BG] = options.gyro_bias_cov
+    d[VEL] = options.velocity_cov
+    d[BA] = options.acc_bias_cov
+    d[EXT_R] = options.extrinsic_rotation_cov
+    d[EXT_P] = options.extrinsic_translation_cov
     P[np.diag_indices(IMU_DIM)] = d
     return P

@@ -21,24 +21,11 @@ with the weight its σ gives it (instead of as a virtual right-camera pixel with
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from msckf.options import TriangulationParams
+
 __all__ = ["TriangulationParams", "views_from_clones", "initial_guess", "triangulate_batch"]
-
-
-@dataclass(frozen=True)
-class TriangulationParams:
-    """LM settings (S-MSCKF hard-coded values by default): Huber ε in normalised units, step-norm precision,
-    initial damping, outer (accepted-step) and inner (damping-retry) iteration limits."""
-
-    huber_epsilon: float = 0.01
-    estimation_precision: float = 5e-7
-    initial_damping: float = 1e-3
-    outer_loop_max_iteration: int = 10
-    inner_loop_max_iteration: int = 10
-    fallback_inverse_depth: float = 0.1
 
 
 def views_from_clones(R_w_c: np.ndarray, p_c: np.ndarray, obs: np.ndarray, has: np.ndarray,

@@ -33,7 +33,8 @@ class FeatureObservations:
         source: (N,) uint8 ``DepthSource`` per feature.
         track_length: (N,) int32 number of frames the track has been observed, this one included.
         depth_sigma_m: (N,) σ of ``depth_m`` in metres (cam0 Z), or None. NaN entries (or None) mean "no stated
-            σ": the filter then uses its configured depth noise model (``MsckfConfig.depth_*``).
+            σ": the filter then uses its configured depth noise model (``MsckfConfig.depth``:
+            :class:`~msckf.options.DepthOptions`).
     """
 
     stamp_s: float

@@ -37,6 +37,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
+from msckf.options import DepthOptions, PropagationOptions, UpdateOptions, WindowOptions
 from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
@@ -69,6 +70,14 @@ class MeasurementSpec:
     depth_inv_sigma: float = 0.01
     depth_rel_sigma: float = 0.05
     depth_gate_sigma: float = 0.0
+
+    @classmethod
+    def from_options(cls, R_c1_c0: np.ndarray, t_c1_c0: np.ndarray, g_w: np.ndarray, update: UpdateOptions,
+                     depth: DepthOptions, propagation: PropagationOptions) -> "MeasurementSpec":
+        """The spec of a filter: its stereo extrinsics and gravity, and the noise / depth settings of its groups."""
+        return cls(R_c1_c0, t_c1_c0, g_w, update.feature_noise, oc=propagation.observability_constrained,
+                   depth_row=depth.depth_row, depth_inv_sigma=depth.depth_inv_sigma,
+                   depth_rel_sigma=depth.depth_rel_sigma, depth_gate_sigma=depth.depth_gate_sigma)
 
 
 def inverse_depth_sigma(depth: np.ndarray, depth_sigma: np.ndarray | None, inv_sigma: float, rel_sigma: float
@@ -483,15 +492,17 @@ def inject_correction(state: ImuState, clones: CloneStore, dx: np.ndarray) -> No
         clones.p[order] = clones.p[order] + d[:, 3:6]
 
 
-def find_redundant_clones(clones: CloneStore, rotation_threshold: float, translation_threshold: float,
-                          tracking_rate: float, tracking_rate_threshold: float) -> list[int]:
+def find_redundant_clones(clones: CloneStore, window: WindowOptions, tracking_rate: float) -> list[int]:
     """msckf_vio ``findRedundantCamStates``: two slots to remove, oldest first.
 
     The key clone is the 4th-newest. The 3rd-newest (then the 2nd-newest) is removed when it is within
-    ``rotation_threshold`` (rad) and ``translation_threshold`` (m) of the key and the tracking rate is above
-    ``tracking_rate_threshold``; otherwise the oldest (then the next oldest) is removed. As in the C++
-    (unlike the uoip port), the recent-clone iterator only advances when a recent clone was removed.
+    ``window.rotation_threshold`` (rad) and ``window.translation_threshold`` (m) of the key and the tracking rate
+    (fraction of the map tracked in the newest frame) is above ``window.tracking_rate_threshold``; otherwise the
+    oldest (then the next oldest) is removed. As in the C++ (unlike the uoip port), the recent-clone iterator
+    only advances when a recent clone was removed.
     """
+    rotation_threshold, translation_threshold = window.rotation_threshold, window.translation_threshold
+    tracking_rate_threshold = window.tracking_rate_threshold
     order = clones.order
     key = order[-4]
     key_R = clones.R_w_c[key]

@@ -319,7 +319,7 @@ def run_job(job: Job) -> dict[str, Any]:
             metrics = evaluate(read_tum(inputs.gt), est, eval_options).metrics()
     settings = {"variant": job.variant, "inputs": inputs.to_options(), "eval": eval_options.to_dict()}
     if job.variant != "odometry":
-        settings["msckf"] = load_config(inputs.msckf_config).to_dict()
+        settings["msckf"] = load_config(inputs.msckf_config).to_flat_dict()
     record = RunRecord(
         sequence=job.sequence, variant=job.variant, seed=job.seed,
         status="failed" if failure else "ok", failure_reason=failure,

@@ -82,7 +82,8 @@ def sequence_key_parts(bag_identity: str, gt: Path | str | None, camchain: Path 
         camchain: the camchain file actually used (the shipped one by default).
         max_frames: frame limit of every stage (None: the whole sequence).
         levers: ``lever_arm_imu`` (m), ``lever_arm_base`` (m), ``R_base_imu`` as given to the runs.
-        msckf: resolved MSCKF configuration (``MsckfConfig.to_dict()``).
+        msckf: resolved MSCKF configuration, flat (``MsckfConfig.to_flat_dict()``: the same mapping as before the
+            config was grouped, so keys of unchanged configs do not move).
         depth_key: :meth:`DepthParams.key`.
         inpaint_key: :meth:`InpaintParams.key` of the ``depth-inpainted`` method, or None.
         code_version: :func:`pipeline.version.code_version`.

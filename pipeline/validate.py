@@ -39,7 +39,7 @@ def check_msckf_config(path: str | Path | None) -> dict[str, Any]:
 
     if path is not None and not Path(path).is_file():
         raise AgrivioError(f"{path}: msckf config file not found")
-    return load_config(path).to_dict()
+    return load_config(path).to_flat_dict()
 
 
 def check_output_dir(out_dir: Path) -> None:

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from msckf.config import MsckfConfig
+from msckf.config import MsckfConfig, load_config
 from msckf.filter import MsckfFilter
 from msckf.triangulation import TriangulationParams, triangulate_batch
 from msckf.types import DepthSource, FeatureObservations
@@ -113,8 +113,8 @@ def test_bad_depths_with_an_honest_sigma_do_less_harm():
     more accurate than when it trusts them at the measured-depth σ (1 %). (Measured: clean 0.020 m, honest σ
     0.045 m, trusted 0.058 m; a bias of 1 σ shared by a third of the tracks still costs something.)"""
     w = make_world(seed=21, duration=6.0, max_features=150, depth_mode=True, depth_rel_sigma=0.01)
-    cfg = MsckfConfig(**dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4,
-                             velocity_cov=1e-3, depth_row=True, depth_rel_sigma=0.01, depth_inv_sigma=1e-3))
+    cfg = load_config(dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4,
+                           velocity_cov=1e-3, depth_row=True, depth_rel_sigma=0.01, depth_inv_sigma=1e-3))
     clean = _final_error(w, cfg)
     honest = _final_error(_corrupt_depths(w, 0.25, 0.25), cfg)
     trusted = _final_error(_corrupt_depths(w, 0.25, None), cfg)

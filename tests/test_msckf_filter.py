@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from msckf.config import MsckfConfig
+from msckf.config import MsckfConfig, load_config
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.filter import MsckfFilter
 from msckf.rotation import so3_exp, so3_log
@@ -20,7 +20,7 @@ def _matched_config(**kw) -> MsckfConfig:
     """Filter noise equal to the simulator's (1 px feature noise)."""
     args = dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, velocity_cov=1e-3)
     args.update(kw)
-    return MsckfConfig(**args)
+    return load_config(args)
 
 
 def _perturbed_filter(w, cfg, P0_diag, rng):

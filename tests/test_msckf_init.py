@@ -8,9 +8,7 @@ from msckf.errors import MsckfInputError
 from msckf.init import NonStaticStartError, static_initialize
 from msckf.rotation import so3_exp
 
-C = MsckfConfig()
-LIMITS = dict(max_gyro_std=C.init_max_gyro_std, max_gyro_mean=C.init_max_gyro_mean, max_acc_std=C.init_max_acc_std,
-              max_acc_drift=C.init_max_acc_drift, max_gyro_drift=C.init_max_gyro_drift)
+LIMITS = MsckfConfig().init
 RATE, N = 142.0, 200
 
 
@@ -27,7 +25,7 @@ def test_gravity_direction_and_gyro_bias_from_a_still_window():
     R_w_i = so3_exp(np.array([1.2, -0.4, 0.7]))              # any tilt (Rosario's IMU has x up)
     bias = np.array([0.002, -0.001, 0.0015])
     t, g, a = _window(R_w_i, bias, rng)
-    res = static_initialize(t, g, a, **LIMITS)
+    res = static_initialize(t, g, a, LIMITS)
     assert np.allclose(res.gyro_bias, bias, atol=4 * 0.005 / np.sqrt(N))
     assert abs(res.gravity_norm - 9.81) < 4 * 0.05 / np.sqrt(N)
     up = res.R_w_i @ a.mean(axis=0)
@@ -57,7 +55,7 @@ def test_a_moving_start_is_detected_and_named(motion, words):
     }[motion]
     t, g, a = _window(R_w_i, np.zeros(3), rng, **kw)
     with pytest.raises(NonStaticStartError, match=words) as exc:
-        static_initialize(t, g, a, **LIMITS)
+        static_initialize(t, g, a, LIMITS)
     assert isinstance(exc.value, MsckfInputError)
     assert "not static" in str(exc.value) and "200 IMU samples" in str(exc.value)
 

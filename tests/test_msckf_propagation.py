@@ -127,7 +127,7 @@ def test_process_noise_is_symmetric_psd_and_matches_definition():
     rng = np.random.default_rng(4)
     R = so3_exp(rng.normal(size=3))
     Phi = transition_matrix(error_jacobian_F(R, rng.normal(size=3), rng.normal(size=3)), 0.01)
-    noise = ImuNoise(gyro=0.005, gyro_bias=0.001, acc=0.05, acc_bias=0.01)
+    noise = ImuNoise(gyro_noise=0.005, gyro_bias_noise=0.001, acc_noise=0.05, acc_bias_noise=0.01)
     Q = process_noise(Phi, noise.diag12(), 0.01)
     G = np.zeros((21, 12))
     G[0:3, 0:3], G[3:6, 3:6], G[6:9, 6:9], G[9:12, 9:12] = -np.eye(3), np.eye(3), -R, np.eye(3)

@@ -4,13 +4,16 @@
 import numpy as np
 import pytest
 
-from msckf.config import MsckfConfig
+from msckf.config import load_config
 from msckf.filter import MsckfFilter
+from msckf.options import WindowOptions
 from msckf.rotation import so3_exp
 from msckf.state import CloneStore
 from msckf.update import (MeasurementSpec, ekf_update_information, find_redundant_clones, gating_chi2,
                           measurement_blocks, qr_update, schur_information)
 from tests.msckf_sim_world import iterate, make_world, rosario_extrinsics
+
+WINDOW = WindowOptions(rotation_threshold=0.2618, translation_threshold=0.4, tracking_rate_threshold=0.5)
 
 _, _T10 = rosario_extrinsics()
 G_W = np.array([0.0, 0.0, -9.81])
@@ -88,8 +91,8 @@ def running_filter(request):
     live features triangulated."""
     w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=request.param == "depth",
                    depth_rel_sigma=0.02)
-    cfg = MsckfConfig(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                      feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_row=False)
+    cfg = load_config(dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                           feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_row=False))
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81,
                    covariance=np.diag(np.r_[[1e-4] * 3, [1e-6] * 3, [1e-2] * 3, [1e-4] * 3, [1e-4] * 3,
@@ -133,13 +136,14 @@ def _projected_chi2(P, batch, sigma, n_clones):
 @pytest.mark.parametrize("depth_row", [False, True])
 def test_schur_update_equals_qr_null_space_update(running_filter, oc, depth_row):
     flt, rows, order = running_filter
-    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise, oc=oc, depth_row=depth_row)
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.update.feature_noise, oc=oc,
+                           depth_row=depth_row)
     mask = flt.features.has[rows][:, order]
     b = flt._batch(rows, mask, spec)
     has_depth = bool(np.isfinite(flt.features.depth[rows]).any())
     assert b.rows.shape[-1] == (5 if depth_row else 4)
     assert not depth_row or b.rows[..., 4].any() == has_depth
-    sigma = flt.config.feature_noise
+    sigma = flt.config.update.feature_noise
     n_cl = len(order)
     dx_ref, P_ref = qr_update(flt.P, b, sigma, n_cl)
     gamma_ref = _projected_chi2(flt.P, b, sigma, n_cl)
@@ -156,8 +160,9 @@ def test_filter_runs_identically_with_schur_and_qr_updates():
     w = make_world(seed=4, duration=4.0, max_features=80)
     poses = {}
     for method in ("schur", "qr"):
-        cfg = MsckfConfig(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                          feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, update_method=method)
+        cfg = load_config(dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                               feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4,
+                               update_method=method))
         flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
         poses[method] = np.array([np.r_[p.p_world, p.v_world] for _, p in iterate(w, flt)])
@@ -168,20 +173,20 @@ def test_pruning_policy_follows_msckf_vio():
     cl = CloneStore(8)
     for i in range(6):                                  # 6 clones, 1 m apart: nothing is redundant
         cl.add(i, float(i), np.eye(3), np.array([float(i), 0.0, 0.0]))
-    assert find_redundant_clones(cl, 0.2618, 0.4, 0.9, 0.5) == [cl.order[0], cl.order[1]]
+    assert find_redundant_clones(cl, WINDOW, 0.9) == [cl.order[0], cl.order[1]]
     cl2 = CloneStore(8)
     for i, x in enumerate([0.0, 1.0, 2.0, 2.1, 2.2, 5.0]):   # 3rd/2nd-newest within 0.4 m of the key (4th-newest)
         cl2.add(i, float(i), np.eye(3), np.array([x, 0.0, 0.0]))
-    assert find_redundant_clones(cl2, 0.2618, 0.4, 0.9, 0.5) == [cl2.order[3], cl2.order[4]]
+    assert find_redundant_clones(cl2, WINDOW, 0.9) == [cl2.order[3], cl2.order[4]]
     # low tracking rate → the oldest go, even when the recent ones are close
-    assert find_redundant_clones(cl2, 0.2618, 0.4, 0.3, 0.5) == [cl2.order[0], cl2.order[1]]
+    assert find_redundant_clones(cl2, WINDOW, 0.3) == [cl2.order[0], cl2.order[1]]
     cl3 = CloneStore(8)
     for i, x in enumerate([0.0, 1.0, 2.0, 2.1, 5.0, 6.0]):   # 3rd-newest close, 2nd-newest far
         cl3.add(i, float(i), np.eye(3), np.array([x, 0.0, 0.0]))
     cl3.R_w_c[cl3.order[3]] = so3_exp(np.array([0.0, 0.0, 0.1]))      # 5.7° < 15°: still redundant
-    assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[3]]
+    assert find_redundant_clones(cl3, WINDOW, 0.9) == [cl3.order[0], cl3.order[3]]
     cl3.R_w_c[cl3.order[3]] = so3_exp(np.array([0.0, 0.0, 0.3]))      # 17° > 15°: not redundant
-    assert find_redundant_clones(cl3, 0.2618, 0.4, 0.9, 0.5) == [cl3.order[0], cl3.order[1]]
+    assert find_redundant_clones(cl3, WINDOW, 0.9) == [cl3.order[0], cl3.order[1]]
 
 
 def test_robust_weight_scales_a_features_sigma_by_its_excess_chi2(running_filter):
@@ -190,9 +195,9 @@ def test_robust_weight_scales_a_features_sigma_by_its_excess_chi2(running_filter
     from msckf.update import downweight_features
 
     flt, rows, order = running_filter
-    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise, depth_row=True)
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.update.feature_noise, depth_row=True)
     b = flt._batch(rows[:6], flt.features.has[rows[:6]][:, order], spec)
-    sigma = flt.config.feature_noise
+    sigma = flt.config.update.feature_noise
     gamma = gating_chi2(flt.P, b, sigma)
     dof = b.n_rows - 3
     k = 2.0

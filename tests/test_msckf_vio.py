@@ -57,7 +57,7 @@ def test_facade_rejects_bad_arguments():
     with pytest.raises(MsckfInputError, match="StereoRig"):
         Msckf(None, "rig", frontend=_ReplayFrontend([]))
     vio = Msckf({"feature_noise": 0.01}, rig, variant="depth", frontend=_ReplayFrontend([]))
-    assert vio.config.feature_noise == 0.01
+    assert vio.config.update.feature_noise == 0.01
     with pytest.raises(MsckfInputError, match="depth map"):
         vio.add_frame(0.0, np.zeros((376, 672), np.uint8), right_grey=np.zeros((376, 672), np.uint8))
 
@@ -73,7 +73,7 @@ def test_real_front_ends_on_a_static_scene(variant):
     depth = rectified_depth(rig, T, wall)
     R_c_i = rig.T_left_imu[:3, :3]
     f_imu = R_c_i.T @ np.array([0.0, -9.81, 0.0])      # at rest the accelerometer reads "up" = −y_cam
-    cfg = MsckfConfig(feature_noise=1.5 / rig.fx)
+    cfg = load_config({"feature_noise": 1.5 / rig.fx})
     vio = Msckf(cfg, rig, variant=variant, seed=0)
     poses = []
     for k in range(1, 451):                             # 3 s of IMU at 150 Hz, images at 15 Hz
@@ -95,15 +95,18 @@ def test_load_config_from_yaml_and_errors(tmp_path):
     p = tmp_path / "vio.yaml"
     p.write_text("feature_noise: 0.01\nchi2_quantile: 0.99\nfrontend:\n  grid_min_feature_num: 10\n")
     c = load_config(p)
-    assert c.feature_noise == 0.01 and c.chi2_quantile == 0.99 and c.frontend.grid_min_feature_num == 10
+    assert c.update.feature_noise == 0.01 and c.update.chi2_quantile == 0.99 and c.frontend.grid_min_feature_num == 10
     assert load_config(c.to_dict()) == c                # round trip
     d = MsckfConfig()                                   # Rosario launch values (rosario.md §7)
-    assert (d.max_cam_state_size, d.position_std_threshold, d.rotation_threshold, d.translation_threshold,
-            d.tracking_rate_threshold, d.feature_translation_threshold) == (20, 8.0, 0.2618, 0.4, 0.5, -1.0)
-    assert (d.gyro_noise, d.acc_noise, d.gyro_bias_noise, d.acc_bias_noise) == (0.005, 0.05, 0.001, 0.01)
-    assert (d.velocity_cov, d.gyro_bias_cov, d.acc_bias_cov, d.extrinsic_rotation_cov,
-            d.extrinsic_translation_cov) == (0.25, 0.01, 0.01, 3.0462e-4, 2.5e-5)
-    assert d.init_imu_samples == 200 and d.frontend.grid_min_feature_num == 30
+    assert (d.window.max_cam_state_size, d.health.position_std_threshold, d.window.rotation_threshold,
+            d.window.translation_threshold, d.window.tracking_rate_threshold,
+            d.triangulation.feature_translation_threshold) == (20, 8.0, 0.2618, 0.4, 0.5, -1.0)
+    n = d.imu_noise
+    assert (n.gyro_noise, n.acc_noise, n.gyro_bias_noise, n.acc_bias_noise) == (0.005, 0.05, 0.001, 0.01)
+    i = d.init
+    assert (i.velocity_cov, i.gyro_bias_cov, i.acc_bias_cov, i.extrinsic_rotation_cov,
+            i.extrinsic_translation_cov) == (0.25, 0.01, 0.01, 3.0462e-4, 2.5e-5)
+    assert i.init_imu_samples == 200 and d.frontend.grid_min_feature_num == 30
     p.write_text("feature_nois: 0.01\n")
     with pytest.raises(MsckfInputError, match=r"vio.yaml.*feature_nois"):
         load_config(p)

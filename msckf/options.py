@@ -1,0 +1,316 @@
+"""The option groups of the MSCKF back end: one frozen, validated dataclass per component (OpenVINS-style).
+
+:class:`~msckf.config.MsckfConfig` composes them (plus :class:`~msckf.frontend_config.FrontendConfig` for the
+front end); each component function takes only the group it uses. Defaults are CIFASIS'
+``launch/msckf_vio_rosario.launch`` values (references/rosario.md §7, msckf.md §1.14) and the constants msckf_vio
+hard-codes; choices of this port that differ from S-MSCKF are marked "[port]".
+
+Every field name is also the parameter's flat key in YAML / dicts (see :data:`msckf.config.FLAT_KEYS`), so a bad
+value is reported under the name the user wrote: ``msckf config: <name>=<value> <why>``.
+
+Units: noise values are continuous-time standard deviations (noise densities) exactly as S-MSCKF's launch files
+give them (the code squares them). Initial covariances are variances.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from msckf.errors import MsckfInputError
+
+__all__ = ["WindowOptions", "ImuNoise", "PropagationOptions", "InitOptions", "UpdateOptions", "DepthOptions",
+           "TriangulationParams", "HealthOptions"]
+
+
+def _bad(obj: Any, name: str, why: str) -> MsckfInputError:
+    return MsckfInputError(f"msckf config: {name}={getattr(obj, name)!r} {why}")
+
+
+def _check_types(obj: Any) -> None:
+    """Type-check (and coerce ints to float for float fields) every field of an option group."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if f.type == "float":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise _bad(obj, f.name, "must be a finite number")
+            object.__setattr__(obj, f.name, float(value))
+        elif f.type == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise _bad(obj, f.name, "must be an integer")
+        elif f.type == "bool":
+            if not isinstance(value, bool):
+                raise _bad(obj, f.name, "must be true or false")
+
+
+def _check(obj: Any, positive: tuple[str, ...] = (), non_negative: tuple[str, ...] = (),
+           at_least_one: tuple[str, ...] = ()) -> None:
+    """Types first, then ``> 0`` / ``>= 0`` / ``>= 1`` of the named fields."""
+    _check_types(obj)
+    for name in positive:
+        if getattr(obj, name) <= 0:
+            raise _bad(obj, name, "must be > 0")
+    for name in non_negative:
+        if getattr(obj, name) < 0:
+            raise _bad(obj, name, "must be >= 0")
+    for name in at_least_one:
+        if getattr(obj, name) < 1:
+            raise _bad(obj, name, "must be >= 1")
+
+
+@dataclass(frozen=True)
+class WindowOptions:
+    """Sliding window and pruning (S-MSCKF, Rosario launch; msckf_vio ``findRedundantCamStates``).
+
+    Attributes:
+        max_cam_state_size: clones kept in the sliding window (2 are pruned when it is reached). >= 4.
+        rotation_threshold: rad; a recent clone closer than this in angle (and ``translation_threshold`` in
+            distance, with tracking rate above ``tracking_rate_threshold``) to the 4th-newest is redundant.
+        translation_threshold: metres (pruning).
+        tracking_rate_threshold: fraction (0–1) of the map tracked in the newest frame (pruning).
+    """
+
+    max_cam_state_size: int = 20
+    rotation_threshold: float = 0.2618
+    translation_threshold: float = 0.4
+    tracking_rate_threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        _check(self, non_negative=("rotation_threshold", "translation_threshold", "tracking_rate_threshold"))
+        if self.max_cam_state_size < 4:
+            raise _bad(self, "max_cam_state_size", "must be >= 4 (pruning compares with the 4th-newest clone)")
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Continuous-time IMU noise σ's (S-MSCKF launch values; the code squares them). All > 0.
+
+    Attributes:
+        gyro_noise: gyro white noise, rad/s/√Hz.
+        gyro_bias_noise: gyro bias random walk, rad/s²/√Hz.
+        acc_noise: accelerometer white noise, m/s²/√Hz.
+        acc_bias_noise: accelerometer bias random walk, m/s³/√Hz.
+    """
+
+    gyro_noise: float = 0.005
+    gyro_bias_noise: float = 0.001
+    acc_noise: float = 0.05
+    acc_bias_noise: float = 0.01
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("gyro_noise", "gyro_bias_noise", "acc_noise", "acc_bias_noise"))
+
+    def diag12(self) -> np.ndarray:
+        """diag(Q_c) for the noise vector [n_g, n_wg, n_a, n_wa], (12,)."""
+        return np.repeat([self.gyro_noise**2, self.gyro_bias_noise**2, self.acc_noise**2, self.acc_bias_noise**2], 3)
+
+
+@dataclass(frozen=True)
+class PropagationOptions:
+    """Process model choices.
+
+    Attributes:
+        observability_constrained: OC-EKF modifications of Φ and of the measurement Jacobians H (S-MSCKF);
+            False = standard EKF. One choice for the whole filter (propagation and update).
+        propagate_to_image_time: [port] after the last IMU sample at or before the image, propagate the rest of
+            the way to the image stamp holding that sample (S-MSCKF stops at the sample, up to one IMU period —
+            7 ms at Rosario's 142 Hz — early).
+    """
+
+    observability_constrained: bool = True
+    propagate_to_image_time: bool = True
+
+    def __post_init__(self) -> None:
+        _check(self)
+
+
+@dataclass(frozen=True)
+class InitOptions:
+    """Initial state and covariance, and the static-start initialisation (msckf.init).
+
+    Attributes:
+        initial_velocity: (3,) m/s, world frame.
+        velocity_cov: m²/s², initial velocity variance.
+        gyro_bias_cov: (rad/s)², initial gyro bias variance.
+        acc_bias_cov: (m/s²)², initial accelerometer bias variance.
+        extrinsic_rotation_cov: rad², initial variance of the IMU–camera rotation.
+        extrinsic_translation_cov: m², initial variance of the IMU–camera translation.
+        init_imu_samples: IMU samples averaged for the static initialisation (S-MSCKF: 200). >= 10.
+        init_max_gyro_std: rad/s, per-axis standard deviation above which the start is not static.
+        init_max_gyro_mean: rad/s, |mean gyro| above which the start is rotating (bias must be smaller).
+        init_max_acc_std: m/s², per-axis standard deviation above which the start is not static.
+        init_max_acc_drift: m/s², change of the mean accelerometer vector between the first and last quarter of
+            the window above which the start is accelerating or tilting.
+        init_max_gyro_drift: rad/s, the same for the mean angular rate (turning during part of the window).
+    """
+
+    initial_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    velocity_cov: float = 0.25
+    gyro_bias_cov: float = 0.01
+    acc_bias_cov: float = 0.01
+    extrinsic_rotation_cov: float = 3.0462e-4
+    extrinsic_translation_cov: float = 2.5e-5
+    init_imu_samples: int = 200
+    init_max_gyro_std: float = 0.1
+    init_max_gyro_mean: float = 0.1
+    init_max_acc_std: float = 0.5
+    init_max_acc_drift: float = 0.3
+    init_max_gyro_drift: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("init_max_gyro_std", "init_max_gyro_mean", "init_max_acc_std", "init_max_acc_drift",
+                               "init_max_gyro_drift"),
+               non_negative=("velocity_cov", "gyro_bias_cov", "acc_bias_cov", "extrinsic_rotation_cov",
+                             "extrinsic_translation_cov"))
+        try:
+            v = tuple(float(x) for x in self.initial_velocity)
+        except (TypeError, ValueError):
+            raise _bad(self, "initial_velocity", "must be three numbers") from None
+        if len(v) != 3 or not all(math.isfinite(x) for x in v):
+            raise _bad(self, "initial_velocity", "must be three finite numbers")
+        object.__setattr__(self, "initial_velocity", v)
+        if self.init_imu_samples < 10:
+            raise _bad(self, "init_imu_samples", "must be >= 10")
+
+
+@dataclass(frozen=True)
+class UpdateOptions:
+    """The visual measurement update: noise, χ² gate, robust weighting, solver.
+
+    Attributes:
+        feature_noise: [port] σ of a normalised image coordinate (≈ pixels / fx). Default 0.007 ≈ 2.5 px at the
+            Rosario rectified fx of 351 px, paired with the 95 % gate below. The Rosario launch value 0.035
+            (≈ 12 px) only makes sense paired with S-MSCKF's 5 % gate (msckf.md §0.3: carry the pair over or
+            re-tune both; this port re-tunes both). On the simulated feature world (benchmarks/bench_msckf.py) an
+            under-stated σ costs far more than an over-stated one (the gate then rejects good features).
+        chi2_quantile, chi2_dof: [port] χ² gate. Each feature is accepted when
+            ``rᵀ(HPHᵀ + σ²I)⁻¹r < chi2.ppf(chi2_quantile, dof)``. Default: the 95 % quantile with
+            ``dof = residual rows after null-space projection`` (``"residual"``: a true 5 % false-rejection
+            test). S-MSCKF uses the 5 % quantile with dof = #observations − 1 (``"observations"``; issue #124:
+            with an honest σ it rejects nearly every update — measured: all of them on the simulated world —
+            hence its inflated σ); ``chi2_quantile=0.05, chi2_dof="observations", feature_noise=0.035``
+            reproduces that pairing.
+        robust_k: Huber-style weight (dimensionless) of a gated-in feature: when its χ² per degree of freedom
+            γ/dof exceeds ``robust_k``, its σ is scaled by ``sqrt(γ / (dof · robust_k))`` (its whole residual —
+            pixel and depth rows — counts with that weight). 0 (default) disables it.
+        track_drift_psd: q of the tracking-drift model (normalised²/s; ``msckf.update.whiten_track_drift``): the
+            pixel errors of one track are correlated as ``σ² δ_ij + q·min(t_i, t_j)`` from its first observation
+            in the window. 0 (default) keeps them independent.
+        max_update_rows: [port] S-MSCKF stops stacking lost-feature Jacobians after 1500 rows (and drops the
+            rest) to bound its run time; this port's update cost does not grow with rows, so the default is
+            0 = no cap. A positive value restores the S-MSCKF behaviour.
+        update_method: ``"qr"`` (default; literal S-MSCKF: QR of each feature's H_f for its left null space,
+            stacked QR compression, Joseph-form EKF update) or ``"schur"`` (1.3–1.7× faster: the feature is
+            marginalised by a Schur complement, algebraically the same, with the symmetric covariance update).
+            Measured on the simulated Rosario-like sequences: with depth-map observations the symmetric update
+            lost positive definiteness within 5–9 s on 14 of 20 depth runs ("negative variance"), the Joseph
+            form on none; hence ``qr`` by default.
+    """
+
+    feature_noise: float = 0.007
+    chi2_quantile: float = 0.95
+    chi2_dof: str = "residual"
+    robust_k: float = 0.0
+    track_drift_psd: float = 0.0
+    max_update_rows: int = 0
+    update_method: str = "qr"
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("feature_noise",), non_negative=("max_update_rows", "robust_k", "track_drift_psd"))
+        if not 0.0 < self.chi2_quantile < 1.0:
+            raise _bad(self, "chi2_quantile", "must be in (0, 1)")
+        if self.chi2_dof not in ("residual", "observations"):
+            raise _bad(self, "chi2_dof", "must be 'residual' or 'observations'")
+        if self.update_method not in ("schur", "qr"):
+            raise _bad(self, "update_method", "must be 'schur' or 'qr'")
+
+
+@dataclass(frozen=True)
+class DepthOptions:
+    """Depth-map observations (variants ``depth-*``; msckf.md §5).
+
+    Attributes:
+        depth_seed: seed the triangulation with the measured depth when the anchor observation has one.
+        depth_row: [port, default True] a depth-map observation enters as an inverse-depth residual row with its
+            own σ (rows u0, v0, 1/d) instead of a virtual cam1 pixel derived from the cam0 pixel and the depth
+            (that pixel's error is fully correlated with cam0's and was treated as independent, σ = 1 px, with no
+            knowledge of the depth's own σ). Measured (benchmarks/bench_depth_oracle.py, 10 s presets 02/03,
+            3 seeds): depth-raw 0.0180 / 0.0463 m → 0.0189 / 0.0321 m, Telea-inpainted 0.0361 / 0.0359 m →
+            0.0194 / 0.0331 m, exact tracked-point depth 0.0121 / 0.0144 m → 0.0099 / 0.0122 m (stereo front end
+            0.0106 / 0.0229 m); NEES of depth runs 3.6 → 2.7 (bench_msckf.py --quick). False restores the
+            virtual-stereo model.
+        depth_inv_sigma: 1/m, σ of the inverse depth from disparity noise (σ_disp_px / (fx · baseline)). > 0.
+        depth_rel_sigma: relative depth error σ_z / z (dimensionless; e.g. inpainting error); the row's σ is
+            ``sqrt(depth_inv_sigma² + (depth_rel_sigma / z)²)`` in 1/m — depth dependent. An observation that
+            states its own σ_Z (``FeatureObservations.depth_sigma_m``: the pipeline's per-pixel depth σ) uses
+            ``σ_Z / Z²`` instead.
+        depth_gate_sigma: a depth row whose residual at the triangulated feature exceeds this many σ is dropped
+            (that observation counts as monocular); the χ² gate of the whole feature still follows. 0 disables.
+        depth_motion_rel_sigma: with ``depth_row``, a depth-map observation exempts its track from the monocular
+            motion check (``TriangulationParams.mono_translation_threshold``) only if its σ_Z / Z is at most this
+            (dimensionless); with ``depth_row`` the triangulation also weights each depth by its σ instead of
+            using the virtual cam1 pixel.
+    """
+
+    depth_seed: bool = True
+    depth_row: bool = True
+    depth_inv_sigma: float = 0.01
+    depth_rel_sigma: float = 0.05
+    depth_gate_sigma: float = 0.0
+    depth_motion_rel_sigma: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("depth_inv_sigma",),
+               non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma"))
+
+
+@dataclass(frozen=True)
+class TriangulationParams:
+    """When a lost feature is triangulated, and the LM settings of the triangulation (S-MSCKF
+    ``Feature::initializePosition`` hard-coded values by default).
+
+    Attributes:
+        feature_translation_threshold: metres; a feature is triangulated only if the camera moved more than this
+            orthogonally to its first bearing (S-MSCKF ``checkMotion``); −1 (Rosario) disables it.
+        mono_translation_threshold: [port] the same check, metres, applied to features that have no right-camera
+            observation at all (monocular tracks have no stereo baseline to fall back on).
+        huber_epsilon: Huber ε of the per-view residual norm, normalised image units. > 0.
+        estimation_precision: LM stops when the step norm falls below this (normalised / inverse-depth units).
+        initial_damping: initial LM damping λ (dimensionless).
+        outer_loop_max_iteration: accepted-step iteration limit. >= 1.
+        inner_loop_max_iteration: damping-retry iteration limit per outer step. >= 1.
+    """
+
+    feature_translation_threshold: float = -1.0
+    mono_translation_threshold: float = 0.1
+    huber_epsilon: float = 0.01
+    estimation_precision: float = 5e-7
+    initial_damping: float = 1e-3
+    outer_loop_max_iteration: int = 10
+    inner_loop_max_iteration: int = 10
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("huber_epsilon", "estimation_precision", "initial_damping"),
+               at_least_one=("outer_loop_max_iteration", "inner_loop_max_iteration"))
+
+
+@dataclass(frozen=True)
+class HealthOptions:
+    """Online reset, divergence detection and the time budget.
+
+    Attributes:
+        position_std_threshold: metres; online reset when any position σ exceeds it (≤ 0 disables).
+        max_speed: m/s; a faster velocity estimate is declared divergence (field robot). > 0.
+        frame_rate: Hz, expected image rate (only for the budget warning in the stats). > 0.
+    """
+
+    position_std_threshold: float = 8.0
+    max_speed: float = 20.0
+    frame_rate: float = 15.0
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("max_speed", "frame_rate"))

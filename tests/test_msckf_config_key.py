@@ -1,0 +1,34 @@
+"""The MSCKF part of a run's input key must not move when the config code is reorganised.
+
+The pinned hashes were computed from the flat ``MsckfConfig`` of commit e3efd1d (before the config was grouped into
+option types): a change here would silently invalidate every cached run record.
+"""
+
+from __future__ import annotations
+
+from eval.records import config_hash
+from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
+from pipeline.validate import check_msckf_config
+
+#: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
+DEFAULT_MSCKF_HASH = "1c8db5cba7e9d24e"
+#: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
+DEFAULT_JOB_KEY = "f7db3973c980b9ab"
+
+
+def _job_key(msckf: dict) -> str:
+    parts = sequence_key_parts("bag-id", None, __file__, 100, {"lever_arm_imu": [0, 0, 0]}, msckf, "dkey", None, "v1")
+    parts["camchain"] = None  # the digest of this test file would change with every edit of it
+    return input_key(job_key_parts(parts, "stereo", 0))
+
+
+def test_default_msckf_key_is_pinned():
+    flat = check_msckf_config(None)
+    assert config_hash(flat) == DEFAULT_MSCKF_HASH
+    assert _job_key(flat) == DEFAULT_JOB_KEY
+
+
+def test_overridden_msckf_key_changes(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("feature_noise: 0.0003\n")
+    assert config_hash(check_msckf_config(p)) != DEFAULT_MSCKF_HASH
