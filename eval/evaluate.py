@@ -65,8 +65,9 @@ class EvalOptions:
         """The inverse of :meth:`to_dict` (lists become tuples). Keys of other versions and None values are
         ignored, so a record written by another version still gives the options it can state."""
         names = {f.name for f in fields(cls)}
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()
-                      if k in names and v is not None})
+        kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()
+                                  if k in names and v is not None}
+        return cls(**kwargs)
 
 
 @dataclass(frozen=True, eq=False)

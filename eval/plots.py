@@ -137,13 +137,13 @@ def plot_rpe_vs_distance(series: Mapping[str, tuple[Sequence[float], Sequence[fl
     fig = _new_figure(6.4, 3.6)
     ax = fig.add_subplot()
     n = max(1, len(series))
-    for i, (label, (d, m, s)) in enumerate(series.items()):
-        d = np.asarray(d, dtype=np.float64)
+    for i, (label, (dist, mean, std)) in enumerate(series.items()):
+        d = np.asarray(dist, dtype=np.float64)
         if not d.size:
             continue
-        offset = (i - (n - 1) / 2) * 0.01 * (d.max() if d.size else 1.0)
-        s = np.nan_to_num(np.asarray(s, dtype=np.float64), nan=0.0)
-        ax.errorbar(d + offset, np.asarray(m), yerr=s, color=_color(i), marker="o", ms=4, capsize=3, lw=1.0,
+        offset = (i - (n - 1) / 2) * 0.01 * d.max()
+        s = np.nan_to_num(np.asarray(std, dtype=np.float64), nan=0.0)
+        ax.errorbar(d + offset, np.asarray(mean), yerr=s, color=_color(i), marker="o", ms=4, capsize=3, lw=1.0,
                     label=label)
     ax.set_xlabel("travelled distance (m)")
     ax.set_ylabel(ylabel)

@@ -63,8 +63,7 @@ def rpe_table(records: Sequence[RunRecord], distances_m: Sequence[float] = DEFAU
         path = _finite([r.metrics.get("ref_path_length_m") for r in rs])
         row = [seq, variant, str(len(rs)), f"{path.mean():.0f}" if path.size else "–"]
         for d in present:
-            items = [_rpe_items(r).get(d) for r in rs]
-            items = [i for i in items if i is not None]
+            items = [i for i in (_rpe_items(r).get(d) for r in rs) if i is not None]
             row.append(_cell(_finite([i.get("trans_rmse_m") for i in items]),
                              _finite([i.get("drift_mean_pct") for i in items])))
         body.append(row)
