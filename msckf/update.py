@@ -280,10 +280,18 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
 
     A KLT track's error is not white: it drifts as a random walk (measured on the simulator: the error
     increment grows ≈ linearly with the lag, ≈ 0.02 px² per frame, while the frame-to-frame jitter is < 0.1 px).
-    Per feature and per image coordinate, the observation errors are modelled as
+    Per feature and per image axis, the observation errors are modelled as
     ``C_ij = σ² δ_ij + q · (min(t_i, t_j) − t_first)`` (q = ``drift_psd``, normalised²/s; t in s from the
-    feature's first observation in the window). The rows of each coordinate (u0, v0, u1, v1) are multiplied by
-    ``σ L⁻¹`` with ``L Lᵀ = C``, so that the update and the χ² gate can keep R = σ² I. Depth rows are untouched.
+    feature's first observation in the window). The right-camera coordinate of a stereo track is matched from
+    the left one in every frame, so it follows the same drifting surface patch: its drift is the *same* random
+    walk as the left one's (``cov(u0_i, u1_j) = q · min(t_i, t_j)``), with its own white part; the (u0, u1) and
+    (v0, v1) rows of a feature are therefore whitened jointly. The rows are multiplied by ``σ L⁻¹`` with
+    ``L Lᵀ = C``, so that the update and the χ² gate can keep R = σ² I. Depth rows are untouched.
+
+    Measured (``benchmarks/measure_stereo_match.py``): the left→right match error itself is not white either: it
+    is nearly constant along a track (robust σ 0.36–0.38 px, changing by 0.11 px along a track) and heavy-tailed
+    (RMS ≈ 2 px, ≈ 23 % of matches off by > 1 px on preset 03), which this model does not describe; with a
+    small σ the stereo front end therefore stays worse than with the default σ (see the README).
 
     Args:
         times_s: (k, n) observation times of the batch's clone columns (s). valid: (k, n) observation exists.
@@ -297,17 +305,24 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
     t = np.where(valid, times_s - np.where(np.isfinite(t0), t0, 0.0), 0.0)
     ratio = drift_psd / (sigma * sigma)
     r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
-    eye = np.eye(n)
-    for row in range(min(R, 4)):
-        ok = batch.rows[:, :, row] & valid
+    for left, right in ((0, 2), (1, 3)):
+        cols = [c for c in (left, right) if c < R]
+        ok = np.concatenate([batch.rows[:, :, c] & valid for c in cols], axis=1)      # (k, m·n)
         if not ok.any():
             continue
+        tt = np.tile(t, (1, len(cols)))                                                 # (k, m·n)
         both = ok[:, :, None] & ok[:, None, :]
-        C = np.where(both, ratio * np.minimum(t[:, :, None], t[:, None, :]), 0.0) + eye
+        C = np.where(both, ratio * np.minimum(tt[:, :, None], tt[:, None, :]), 0.0) + np.eye(len(cols) * n)
         L = np.linalg.cholesky(C)
-        r[:, :, row] = np.linalg.solve(L, batch.r[:, :, row][..., None])[..., 0]
-        Hx[:, :, row] = np.linalg.solve(L, batch.Hx[:, :, row])
-        Hf[:, :, row] = np.linalg.solve(L, batch.Hf[:, :, row])
+        rr = np.concatenate([batch.r[:, :, c] for c in cols], axis=1)
+        hx = np.concatenate([batch.Hx[:, :, c] for c in cols], axis=1)
+        hf = np.concatenate([batch.Hf[:, :, c] for c in cols], axis=1)
+        rw = np.linalg.solve(L, rr[..., None])[..., 0]
+        hxw, hfw = np.linalg.solve(L, hx), np.linalg.solve(L, hf)
+        for j, c in enumerate(cols):
+            r[:, :, c] = rw[:, j * n:(j + 1) * n]
+            Hx[:, :, c] = hxw[:, j * n:(j + 1) * n]
+            Hf[:, :, c] = hfw[:, j * n:(j + 1) * n]
     return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
 
 

@@ -244,3 +244,36 @@ def test_track_drift_whitening_makes_the_gate_statistic_chi2_for_drifting_tracks
     assert 0.9 < whitened.mean() < 1.1
     assert white.mean() > 3.0
     assert whiten_track_drift(b, t, valid, sigma, 0.0) is b
+
+
+def test_track_drift_whitening_of_stereo_rows_shares_the_drift_between_cameras():
+    """A stereo track's right coordinate is matched from the left one in every frame, so both carry the same
+    random walk (plus their own jitter): the joint (u0, u1) / (v0, v1) model gives γ/dof ≈ 1 where whitening each
+    row on its own (independent walks) misstates the statistic."""
+    from msckf.update import FeatureBatch, whiten_track_drift
+
+    rng = np.random.default_rng(11)
+    k, n, sigma, q, dt = 600, 10, 3e-4, 2.4e-6, 1.0 / 15.0
+    t = np.tile(np.arange(n) * dt, (k, 1))
+    valid = np.ones((k, n), bool)
+    valid[: k // 4, 6:] = False
+    rows = np.repeat(valid[:, :, None], 4, axis=2)
+    rows[k // 2:, :3, 2:] = False                                    # some right observations missing
+    Hf = rng.normal(size=(k, n, 4, 3)) * rows[..., None]
+    steps = rng.normal(size=(k, n, 2)) * np.sqrt(q * dt)
+    steps[:, 0] = 0.0
+    walk = np.cumsum(steps, axis=1)                                  # (k, n, 2): u and v drift, shared
+    err = np.concatenate([walk, walk], axis=2) + rng.normal(size=(k, n, 4)) * sigma
+    r = (err + np.einsum("knrj,kj->knr", Hf, rng.normal(size=(k, 3)))) * rows
+    b = FeatureBatch(np.zeros((k, n), np.int64), np.zeros((k, n, 4, 6)), Hf, r, rows)
+    P = np.zeros((21 + 6, 21 + 6))
+    dof = b.n_rows - 3
+    joint = gating_chi2(P, whiten_track_drift(b, t, valid, sigma, q), sigma) / dof
+    assert 0.9 < joint.mean() < 1.1
+    # the same rows whitened one camera at a time (as if the walks were independent) are off
+    left_only = FeatureBatch(b.pos, b.Hx, b.Hf, b.r * np.array([1, 1, 0, 0]), b.rows & np.array([1, 1, 0, 0], bool))
+    right_only = FeatureBatch(b.pos, b.Hx, b.Hf, b.r * np.array([0, 0, 1, 1]), b.rows & np.array([0, 0, 1, 1], bool))
+    wl, wr = whiten_track_drift(left_only, t, valid, sigma, q), whiten_track_drift(right_only, t, valid, sigma, q)
+    separate = FeatureBatch(b.pos, wl.Hx + wr.Hx, wl.Hf + wr.Hf, wl.r + wr.r, b.rows)
+    ratio = float((gating_chi2(P, separate, sigma) / dof).mean())
+    assert ratio > 1.5, ratio  # independent walks: the shared common-mode error counts as information
