@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from eval.errors import EvalInputError
 from eval.quat import qmul
 
-__all__ = ["Trajectory", "read_tum", "parse_tum", "format_tum", "format_tum_rows", "write_tum", "read_euroc_gt", "parse_euroc_gt"]
+__all__ = ["Trajectory", "read_tum", "parse_tum", "format_tum", "format_tum_rows", "write_tum",
+           "read_euroc_gt", "parse_euroc_gt"]
 
 _IDENTITY_TOL = 1e-9
 

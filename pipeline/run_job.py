@@ -232,7 +232,7 @@ def run_job(job: Job) -> dict[str, Any]:
         raise AgrivioError(f"unknown variant {job.variant!r}; choose from {', '.join(VARIANTS)}")
     plan = job.plan
     if not isinstance(plan, RunPlan):
-        raise AgrivioError(f"{job.label}: the job carries no run plan (build jobs with pipeline.run_sequence.plan_jobs)")
+        raise AgrivioError(f"{job.label}: the job carries no run plan (jobs come from pipeline.run_sequence.plan_jobs)")
     import cv2
 
     cv2.setNumThreads(1)  # one run = one core: runs are parallelised across processes, not inside OpenCV

@@ -3,14 +3,15 @@
 A :class:`RunPlan` holds everything a run of a sequence needs besides its variant and seed: where the sequence
 came from (bag, GT, camchain, content identity), the depth and inpainting parameters, the MSCKF configuration as a
 resolved :class:`msckf.config.MsckfConfig` (the ``--config`` YAML is parsed exactly once, by
-:func:`pipeline.validate.resolve_msckf_config`), the evaluation options, the cache root and the sequence-level parts of every run's
-input key (:mod:`pipeline.run_key`). It is a frozen, picklable dataclass: the batch runner ships it to worker
-processes (or Ray tasks) inside each :class:`pipeline.batch.Job`, so no worker re-reads a settings file.
+:func:`pipeline.validate.resolve_msckf_config`), the evaluation options, the cache root and the sequence-level parts
+of every run's input key (:mod:`pipeline.run_key`). It is a frozen, picklable dataclass: the batch runner ships it
+to worker processes (or Ray tasks) inside each :class:`pipeline.batch.Job`, so no worker re-reads a settings file.
 
 Data path (each arrow: what crosses the boundary)::
 
-    CLI args ──(paths, names)──▶ run_matrix ──(MsckfConfig, DepthParams, InpaintParams)──▶ prepare_sequence
-      ──(RunPlan)──▶ plan_jobs ──(Job: variant, seed, out_dir, JSON description, RunPlan)──▶ run_job (worker)
+    CLI args ──(paths, names)──▶ run_matrix ──(MsckfConfig)──▶ prepare_sequence
+      ──(RunPlan: DepthParams, InpaintParams, MsckfConfig, key parts)──▶ depth / inpaint stages, plan_jobs
+      ──(Job: variant, seed, out_dir, JSON description, RunPlan)──▶ run_job (worker)
 """
 
 from __future__ import annotations
