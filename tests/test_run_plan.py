@@ -134,3 +134,28 @@ def test_depth_is_rounded_once_like_before():
     np.testing.assert_array_equal(mm, encode_depth_mm(q.depth_m))  # rounding the rounded map changes nothing
     np.testing.assert_array_equal(q.depth_m, quantize(frame).depth_m)
     assert DepthParams().key() == DepthParams().key()
+
+
+def test_same_inputs_reuse_and_a_changed_config_recomputes(tmp_path, bag, monkeypatch, capsys):
+    """Through the CLI: the same --config again reuses the record; another --config (same path) recomputes it."""
+    from pipeline.cli import main
+
+    monkeypatch.setenv("AGRIVIO_CACHE", str(tmp_path / "cache"))
+    cfg = tmp_path / "msckf.yaml"
+    cfg.write_text("feature_noise: 0.0003\n")
+    out = tmp_path / "runs"
+    argv = ["run-sequence", str(bag), "--out", str(out), "--variants", "stereo", "--runs", "1",
+            "--executor", "serial", "--config", str(cfg), "--keep-failed"]  # 4 frames: the run fails, kept
+    main(argv)
+    record = out / "seq" / "stereo" / "seed0" / "record.json"
+    first = json.loads(record.read_text())
+    stamp = record.stat().st_mtime_ns
+    capsys.readouterr()
+    main(argv)
+    assert record.stat().st_mtime_ns == stamp and "other inputs" not in capsys.readouterr().err
+    cfg.write_text("feature_noise: 0.0004\n")
+    main(argv)
+    assert "1 existing record(s) were made from other inputs" in capsys.readouterr().err
+    second = json.loads(record.read_text())
+    assert second["input_key"] != first["input_key"]
+    assert second["input_key_parts"]["msckf"]["feature_noise"] == 0.0004
