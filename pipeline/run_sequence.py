@@ -20,8 +20,8 @@ from typing import Any
 
 from tqdm import tqdm
 
-from pipeline.bag_reader import RosarioSequence
 from msckf.config import MsckfConfig
+from pipeline.bag_reader import RosarioSequence
 from pipeline.batch import INPUT_KEY, Job, failed_record, run_jobs
 from pipeline.data_quality import check_stereo_pairing, sequence_quality
 from pipeline.depth import DepthParams
