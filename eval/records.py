@@ -140,8 +140,8 @@ class RunRecord:
     def from_dict(cls, data: Mapping[str, Any], source: str = "<record>") -> "RunRecord":
         """Parse a record dict; unknown keys go to ``extra``. Missing optional keys take defaults.
 
-        Accepts the batch runner's failed records (``pipeline.batch.failed_record``): the inpainting method is
-        looked up in ``job.options`` when absent at the top level.
+        Ok and failed records share one layout (the batch runner's failed records carry the inpainting method at
+        the top level too).
 
         Raises:
             EvalInputError: naming ``source`` when a required key is missing or has a wrong type.
@@ -157,11 +157,6 @@ class RunRecord:
         extra = {k: v for k, v in data.items() if k not in reserved}
         if "extra" in data and isinstance(data["extra"], Mapping):  # a record written with a nested extra
             extra.update(data["extra"])
-        job = data.get("job")
-        if kwargs.get("inpaint_method") is None and isinstance(job, Mapping):
-            options = job.get("options")
-            if isinstance(options, Mapping) and options.get("inpaint_method"):
-                kwargs["inpaint_method"] = str(options["inpaint_method"])
         kwargs.setdefault("seed", -1 if data.get("seed") is None else data["seed"])
         if kwargs.get("seed") is None:
             kwargs["seed"] = -1

@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from eval.errors import EvalInputError
 from eval.quat import qmul
 
-__all__ = ["Trajectory", "read_tum", "parse_tum", "format_tum", "write_tum", "read_euroc_gt", "parse_euroc_gt"]
+__all__ = ["Trajectory", "read_tum", "parse_tum", "format_tum", "format_tum_rows", "write_tum",
+           "read_euroc_gt", "parse_euroc_gt"]
 
 _IDENTITY_TOL = 1e-9
 
@@ -213,11 +214,23 @@ def format_tum(traj: Trajectory, header: str | None = None) -> str:
     ``header``, if given, is written as ``#`` comment lines first. Reading the text back with :func:`parse_tum`
     gives the same poses to within 1e-9.
     """
+    return format_tum_rows(traj.stamps_s, traj.positions, traj.quats_xyzw, header)
+
+
+def format_tum_rows(stamps_s: np.ndarray, positions: np.ndarray, quats_xyzw: np.ndarray,
+                    header: str | None = None) -> str:
+    """TUM text ``t x y z qx qy qz qw`` of raw arrays, written as given (no checks, no renormalisation): the one
+    TUM writer, behind :func:`format_tum`.
+
+    Args:
+        stamps_s: (N,) seconds.  positions: (N, 3) metres.  quats_xyzw: (N, 4) unit quaternions.
+        header: ``#`` comment lines written first (none when None or empty).
+    """
     buf = io.StringIO()
     if header:
         for line in header.splitlines():
             buf.write(f"# {line}\n")
-    data = np.column_stack([traj.stamps_s, traj.positions, traj.quats_xyzw])
+    data = np.column_stack([stamps_s, positions, quats_xyzw])
     if len(data):
         np.savetxt(buf, data, fmt="%.9f", delimiter=" ", newline="\n")
     return buf.getvalue()

@@ -21,7 +21,7 @@ import traceback
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,9 @@ from pipeline.process_pool import spawn_pool
 RECORD_NAME = "record.json"
 #: The job option (and record field) holding the run's input key (see :mod:`pipeline.run_key`).
 INPUT_KEY = "input_key"
+#: Job options copied to the record's top level, in ok and failed records alike (see :mod:`pipeline.run_key`,
+#: :mod:`pipeline.data_quality`); the other options form the record's ``job`` (:func:`job_description`).
+RECORD_FIELDS = (INPUT_KEY, "input_key_parts", "data_quality", "simulated")
 EXECUTORS = ("local", "serial", "ray")
 
 
@@ -47,7 +50,10 @@ class Job:
         variant: ``stereo``, ``depth-raw``, ``depth-inpainted`` or ``odometry``.
         seed: the run's random seed (RANSAC draws, detector jitter).
         out_dir: the folder that receives ``record.json`` and the run's other files.
-        options: extra settings passed through to the run function (inpainting method, config path, GT path, ...).
+        options: JSON-able description of the run for its record (the inputs that apply to it, its input key and
+            parts, ...); the batch runner reads only ``input_key`` and ``inpaint_method`` from it.
+        plan: the resolved settings the run function works from (e.g. a :class:`pipeline.run_plan.RunPlan`), a
+            picklable object shipped to the worker as is; None for run functions that need none.
     """
 
     sequence: str
@@ -56,6 +62,7 @@ class Job:
     seed: int
     out_dir: str
     options: dict[str, Any] = field(default_factory=dict)
+    plan: Any = None
 
     @property
     def record_path(self) -> Path:
@@ -78,7 +85,16 @@ def load_record(path: Path) -> dict[str, Any] | None:
     return record if isinstance(record, dict) and record.get("status") in ("ok", "failed") else None
 
 
+def job_description(job: Job) -> dict[str, Any]:
+    """A record's ``job`` field, the same layout in ok and failed records: the source and the job's options except
+    :data:`RECORD_FIELDS` (those sit at the record's top level) and the IMU → base_link rotation."""
+    return {"source": job.source, **{k: v for k, v in job.options.items()
+                                     if k != "R_base_imu" and k not in RECORD_FIELDS}}
+
+
 def failed_record(job: Job, reason: str, elapsed_s: float | None = None) -> dict[str, Any]:
+    """The record of a run that raised or died: the layout of an ok record (top-level :data:`RECORD_FIELDS`, the
+    inpainting method, ``job`` from :func:`job_description`) with ``status: failed`` and the reason."""
     return {
         "record_type": "run",
         "sequence": job.sequence,
@@ -86,9 +102,10 @@ def failed_record(job: Job, reason: str, elapsed_s: float | None = None) -> dict
         "seed": job.seed,
         "status": "failed",
         "failure_reason": reason,
-        "input_key": job.options.get(INPUT_KEY),
+        "inpaint_method": job.options.get("inpaint_method") if job.variant == "depth-inpainted" else None,
+        **{k: job.options.get(k) for k in RECORD_FIELDS},
         "timings": {"total_s": elapsed_s} if elapsed_s is not None else {},
-        "job": asdict(job),
+        "job": job_description(job),
     }
 
 

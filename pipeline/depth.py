@@ -191,11 +191,14 @@ def depth_from_rectified(left_grey: np.ndarray, right_grey: np.ndarray, fx: floa
     return depth, valid, disp
 
 
+def to_grey(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 BGR → (H, W) uint8 grey (OpenCV's BT.601 weights); an (H, W) image is returned as is."""
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
 def rectify_grey(rig: StereoRig, left_bgr: np.ndarray, right_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Raw BGR (or grey) pair → rectified grey pair, (H, W) uint8 each."""
-    def grey(img: np.ndarray) -> np.ndarray:
-        return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    return rig.rectify(grey(left_bgr), grey(right_bgr))
+    return rig.rectify(to_grey(left_bgr), to_grey(right_bgr))
 
 
 def compute_depth(rig: StereoRig, left_bgr: np.ndarray, right_bgr: np.ndarray, params: DepthParams = DepthParams(),
@@ -231,11 +234,18 @@ def decode_depth_mm(depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return depth.astype(np.float32), valid
 
 
+def quantize_mm(frame: DepthFrame) -> tuple[DepthFrame, np.ndarray]:
+    """The frame as it comes back from the cache (depth rounded to whole millimetres), and its (H, W) uint16
+    millimetre map (0 = hole): what the cache stores, so a caller that stores the frame need not round again."""
+    mm = encode_depth_mm(frame.depth_m)
+    depth, valid = decode_depth_mm(mm)
+    return DepthFrame(frame.stamp_ns, frame.index, depth, valid, frame.left_rect_grey), mm
+
+
 def quantize(frame: DepthFrame) -> DepthFrame:
     """The frame as it comes back from the cache (depth rounded to whole millimetres).
 
     ``depth_stream`` yields quantised frames whether they were just computed or read from disk, so results do
     not depend on the cache's state.
     """
-    depth, valid = decode_depth_mm(encode_depth_mm(frame.depth_m))
-    return DepthFrame(frame.stamp_ns, frame.index, depth, valid, frame.left_rect_grey)
+    return quantize_mm(frame)[0]

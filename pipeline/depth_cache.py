@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from pipeline.atomic import atomic_path, write_json_atomic
-from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize
+from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize_mm
 
 DEFAULT_CHUNK_SIZE = 32
 _PNG_FLAGS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
@@ -59,9 +59,12 @@ class _Encoded:
     hole_ratio: float = float("nan")  # NaN: a chunk written before hole ratios were stored
 
     @classmethod
-    def of(cls, frame: DepthFrame) -> "_Encoded":
-        return cls(int(frame.stamp_ns), int(frame.index), _png(encode_depth_mm(frame.depth_m)),
-                   _png(np.ascontiguousarray(frame.left_rect_grey)), frame.hole_ratio)
+    def of(cls, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> "_Encoded":
+        """Encode ``frame``; ``depth_mm``: its uint16 millimetre map when the caller already has it (not rounded
+        again)."""
+        mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm
+        return cls(int(frame.stamp_ns), int(frame.index), _png(mm), _png(np.ascontiguousarray(frame.left_rect_grey)),
+                   frame.hole_ratio)
 
     def decode(self, grey: bool = True) -> DepthFrame:
         depth, valid = decode_depth_mm(_unpng(self.depth_png))
@@ -190,13 +193,17 @@ class DepthCache:
         enc = self._encoded(index)
         return enc.decode(grey) if enc is not None else None
 
-    def put(self, frame: DepthFrame) -> None:
-        """Store a frame (depth rounded to millimetres). A chunk is written once all its frames are present."""
+    def put(self, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> None:
+        """Store a frame (depth rounded to millimetres). A chunk is written once all its frames are present.
+
+        ``depth_mm``: the frame's depth as (H, W) uint16 millimetres (``pipeline.depth.quantize_mm``) when the
+        caller has rounded it already; then it is stored as is.
+        """
         chunk = frame.index // self.chunk_size
         if chunk not in self._pending:
             self._pending[chunk] = dict(self._load_chunk(chunk))
         pending = self._pending[chunk]
-        pending[frame.index] = _Encoded.of(frame)
+        pending[frame.index] = _Encoded.of(frame, depth_mm)
         if len(pending) == self.chunk_size:
             self._write_chunk(chunk, self._pending.pop(chunk))
 
@@ -285,11 +292,11 @@ def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool
                 st["cached"] += 1
             else:
                 t0 = time.perf_counter()
-                frame = quantize(compute_depth(rig, sf.left_bgr, sf.right_bgr, params, sf.stamp_ns, sf.index))
+                frame, mm = quantize_mm(compute_depth(rig, sf.left_bgr, sf.right_bgr, params, sf.stamp_ns, sf.index))
                 st["compute_s"] += time.perf_counter() - t0
                 st["computed"] += 1
                 if store is not None:
-                    store.put(frame)
+                    store.put(frame, mm)  # rounded to millimetres once
             bar.update(1)
             yield frame
         if store is not None:

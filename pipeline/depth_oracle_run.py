@@ -15,13 +15,13 @@ import numpy as np
 
 from msckf.config import MsckfConfig, load_config
 from pipeline.bag_reader import RosarioSequence
-from pipeline.depth import DepthParams
+from pipeline.depth import DepthParams, to_grey
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.depth_oracle import (Rung, TrackLog, evaluate_rung, record_tracks, run_backend, standard_rungs,
                                    true_track_depths)
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
-from pipeline.run_job import _grey, lever_arms_from_tf
+from pipeline.run_job import lever_arms_from_tf
 from pipeline.sim.sequence import SimulatedSequence
 
 __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference", "default_config"]
@@ -71,7 +71,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
         if k is None:
             raise ValueError(f"{sim_dir}: frame {fr.index} (stamp {fr.stamp_ns}) has no simulator truth")
         T_world_rect[fr.index] = truth["T_E_rectleft"][k]
-        frames.append((fr.index, fr.stamp_ns / 1e9, _grey(fr.left_bgr)))  # as a run converts image stamps
+        frames.append((fr.index, fr.stamp_ns / 1e9, to_grey(fr.left_bgr)))  # as a run converts image stamps
     imu = seq.imu_array()
     logs: dict[int, TrackLog] = {}
     truth_stats: dict[int, dict[str, float]] = {}
@@ -195,7 +195,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                     except NonStaticStartError:  # keep feeding until a still start, as a run does
                         pass
                     k += 1
-                pose = vio.add_frame(t, _grey(fr.left_bgr), right_grey=_grey(fr.right_bgr))
+                pose = vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
                 if pose is not None:
                     stamps.append(pose.stamp_s)
                     ps.append(pose.p_world)

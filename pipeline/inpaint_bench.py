@@ -27,6 +27,7 @@ import numpy as np
 
 from eval.depth_metrics import DEFAULT_PEAK_M, DepthMetrics, depth_metrics
 from inpaint import METHODS, inpaint
+from pipeline.rosario_layout import RATE_CAMERA_HZ
 
 DEFAULT_METHODS = ("paper", "paper-greedy", "ebm", "telea", "ns", "biharmonic", "ipbasic")
 
@@ -273,7 +274,7 @@ def _sim_sequence(preset: str, seed: int, max_frames: int, progress: bool = Fals
     seq = SimulatedSequence(root)
     if (root / "meta.json").is_file() and seq.n_frames >= max_frames:
         return seq
-    duration = max_frames / 15.0 + 0.5
+    duration = max_frames / RATE_CAMERA_HZ + 0.5
     return simulate_sequence(preset, root, seed=seed, duration_s=duration, max_frames=max_frames, progress=progress)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from inpaint import METHODS, inpaint
-from pipeline.depth import DepthFrame, DepthParams
+from pipeline.depth import DepthFrame, DepthParams, quantize_mm
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.process_pool import spawn_pool
@@ -58,15 +58,28 @@ def _weights_fingerprint(method: str) -> str:
     return digest.hexdigest()
 
 
+#: Methods of :data:`inpaint.METHODS` that read the ``guide`` image (the rectified left grey). None does today:
+#: every method works on depth only, so no guide is handed over. A method may also declare it itself with a
+#: ``uses_guide = True`` attribute on its function.
+GUIDED_METHODS: frozenset[str] = frozenset()
+
+
+def uses_guide(method: str) -> bool:
+    """Whether ``method`` reads the guide image (:data:`GUIDED_METHODS` or the method's ``uses_guide``)."""
+    return method in GUIDED_METHODS or bool(getattr(METHODS.get(method), "uses_guide", False))
+
+
 def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
-    """The inpainted version of one raw depth frame (known pixels unchanged; guide = rectified left grey)."""
+    """The inpainted version of one raw depth frame (known pixels unchanged; the rectified left grey is the guide
+    of a method that reads one, :func:`uses_guide`). The frame's grey image travels on unchanged."""
     hole = ~frame.valid
     if not hole.any():
         filled = frame.depth_m.copy()
     elif not frame.valid.any():
         filled = frame.depth_m.copy()  # nothing to inpaint from: the frame stays all-hole
     else:
-        filled = inpaint(np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32), hole, frame.left_rect_grey,
+        guide = frame.left_rect_grey if uses_guide(params.method) else None
+        filled = inpaint(np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32), hole, guide,
                          method=params.method, **dict(params.options))
     filled = np.asarray(filled, dtype=np.float32)
     valid = np.isfinite(filled) & (filled > 0)
@@ -109,15 +122,19 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
                 todo = [f for f in batch if store.get(f.index) is None]
                 t0 = time.perf_counter()
                 mapper = pool.map if pool is not None else map
+                fresh: dict[int, DepthFrame] = {}
                 for done in mapper(inpaint_frame, todo, itertools.repeat(params)):
-                    store.put(done)
+                    # the cached (millimetre) version, as later reads see it, without a PNG decode round trip
+                    frame_mm, mm = quantize_mm(done)
+                    store.put(done, mm)  # stored exactly as before (its hole ratio is the unrounded frame's)
+                    fresh[frame_mm.index] = frame_mm
                 st["compute_s"] += time.perf_counter() - t0
                 st["computed"] += len(todo)
                 st["cached"] += len(batch) - len(todo)
                 for f in batch:
                     n += 1
                     bar.update(1)
-                    yield store.get(f.index)  # the cached (millimetre) version, as later reads see it
+                    yield fresh[f.index] if f.index in fresh else store.get(f.index)
     finally:
         if pool is not None:
             pool.shutdown()

@@ -7,85 +7,41 @@ A run folder holds:
 * ``frames.npz`` — the per-frame log for the replay: stamps, feature counts, time per frame and the features
   themselves (raw left pixels, track length, depth source), ragged arrays flattened with an index.
 
-The function :func:`run_job` is what the batch runner calls in a worker process; it raises on failure (the batch
-runner turns the exception into a failed record) except for filter divergence, which it records itself with the
-reason and the partial estimate.
+The function :func:`run_job` is what the batch runner calls in a worker process; it runs from the job's
+:class:`pipeline.run_plan.RunPlan` (resolved settings, the MSCKF config object included: no settings file is read
+here) and raises on failure (the batch runner turns the exception into a failed record) except for filter
+divergence, which it records itself with the reason and the partial estimate.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from eval.evaluate import EvalOptions, evaluate
+from eval.evaluate import evaluate
 from eval.records import RunRecord, config_hash
 from eval.trajectory import Trajectory, format_tum, read_tum
-from msckf.config import load_config
 from msckf.errors import FilterDivergedError
 from msckf.init import NonStaticStartError
 from msckf.vio import Msckf
 from pipeline.atomic import atomic_path, write_text_atomic
 from pipeline.bag_reader import RosarioSequence
-from pipeline.batch import Job
-from pipeline.depth import DepthParams
+from pipeline.batch import RECORD_FIELDS, Job, job_description
+from pipeline.depth import to_grey
 from pipeline.depth_cache import DepthCache
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.errors import AgrivioError
-from pipeline.inpaint_stage import InpaintParams
 from pipeline.odometry_ekf import run_odometry_ekf
+from pipeline.rosario_layout import RATE_CAMERA_HZ
+from pipeline.run_plan import RunPlan
 from pipeline.version import code_version
 
 VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
-#: Job options copied to the record's top level (see :mod:`pipeline.run_key`, :mod:`pipeline.data_quality`).
-_RECORD_OPTIONS = ("input_key", "input_key_parts", "data_quality", "simulated")
 ESTIMATE_NAME = "estimate.tum"
 FRAMES_NAME = "frames.npz"
-
-
-@dataclass(frozen=True)
-class RunInputs:
-    """What a run needs besides its variant and seed (all paths absolute; JSON-able through ``Job.options``).
-
-    Attributes:
-        bag: the sequence's bag (or the first byte-split part).
-        gt: ground-truth TUM file (Rosario: GPS antenna positions), or None (then no metrics).
-        camchain: Kalibr camchain YAML (None: the shipped Rosario one).
-        cache_root: the cache root holding the depth and inpainted-depth caches.
-        inpaint_method: method of the ``depth-inpainted`` variant (None when that variant is not run).
-        msckf_config: a YAML file overriding MSCKF defaults, or None.
-        lever_arm_imu: (3,) GPS antenna position in the IMU frame, metres (None: compare IMU positions directly).
-        lever_arm_base: (3,) antenna in base_link (for the ``odometry`` variant), metres, or None.
-        R_base_imu: (3, 3) rotation IMU → base_link as nested lists, or None (odometry EKF finds "up" itself).
-        max_frames: stop after this many stereo frames (None: whole sequence).
-    """
-
-    bag: str
-    gt: str | None
-    camchain: str | None
-    cache_root: str
-    inpaint_method: str | None = "paper"
-    msckf_config: str | None = None
-    lever_arm_imu: tuple[float, float, float] | None = None
-    lever_arm_base: tuple[float, float, float] | None = None
-    R_base_imu: tuple[tuple[float, ...], ...] | None = None
-    max_frames: int | None = None
-
-    def to_options(self) -> dict[str, Any]:
-        return {k: v for k, v in self.__dict__.items()}
-
-    @classmethod
-    def from_options(cls, options: dict[str, Any]) -> "RunInputs":
-        known = {k: options[k] for k in cls.__dataclass_fields__ if k in options}
-        for k in ("lever_arm_imu", "lever_arm_base"):
-            if known.get(k) is not None:
-                known[k] = tuple(float(x) for x in known[k])
-        if known.get("R_base_imu") is not None:
-            known["R_base_imu"] = tuple(tuple(float(x) for x in row) for row in known["R_base_imu"])
-        return cls(**known)
 
 
 class _FrameLog:
@@ -188,33 +144,28 @@ def _poses_to_trajectory(stamps: list[float], p: list[np.ndarray], q: list[np.nd
                       np.asarray(q, dtype=np.float64).reshape(-1, 4), has_orientation=True)
 
 
-def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) -> tuple[Trajectory, str | None]:
+def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: _FrameLog) -> tuple[Trajectory, str | None]:
     """Feed IMU and frames to the MSCKF in time order; return the trajectory and a divergence reason (or None)."""
-    config = load_config(inputs.msckf_config) if inputs.msckf_config else None
     rig = seq.calibration
     variant = "stereo" if job.variant == "stereo" else "depth"
-    vio = Msckf(config, rig, variant=variant, seed=job.seed)
+    vio = Msckf(plan.msckf, rig, variant=variant, seed=job.seed)
     imu_ns, imu = seq.imu_samples()
-    depth_store = None
-    if job.variant == "depth-raw":
-        depth_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams())
-    elif job.variant == "depth-inpainted":
-        depth_store = DepthCache(inputs.cache_root, seq.identity(), InpaintParams(method=inputs.inpaint_method))
-    if depth_store is not None and not depth_store.has_frames(inputs.max_frames):
+    depth_params = plan.depth_params(job.variant)
+    depth_store = DepthCache(plan.cache_root, plan.bag_identity, depth_params) if depth_params is not None else None
+    if depth_store is not None and not depth_store.has_frames(plan.max_frames):
         raise AgrivioError(f"{seq.path}: the {job.variant} depth cache is missing or incomplete "
                            f"({depth_store.directory}); run the depth/inpainting stage first")
     # Per-pixel depth σ (pipeline/depth_sigma.py): the raw validity mask travels with the inpainted map, so the
     # filter can tell a filled depth from a measured one.
     sigma_model = DepthSigmaModel.for_rig(rig)
-    raw_store = DepthCache(inputs.cache_root, seq.identity(), DepthParams()) \
-        if job.variant == "depth-inpainted" else None
+    raw_store = DepthCache(plan.cache_root, plan.bag_identity, plan.depth) if job.variant == "depth-inpainted" else None
     non_static: str | None = None
     stamps: list[float] = []
     ps: list[np.ndarray] = []
     qs: list[np.ndarray] = []
     k_imu = 0
     try:
-        for frame in seq.stereo_frames(stop_index=inputs.max_frames, right=variant == "stereo"):
+        for frame in seq.stereo_frames(stop_index=plan.max_frames, right=variant == "stereo"):
             t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's
             k_end = imu_samples_through(imu_ns, frame.stamp_ns, k_imu)  # ordered in integer ns, not in seconds
             for k in range(k_imu, k_end):
@@ -223,10 +174,10 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                 except NonStaticStartError as exc:  # S-MSCKF needs a still start: wait for one, say so if none
                     non_static = str(exc)
             k_imu = k_end
-            left = _grey(frame.left_bgr)
+            left = to_grey(frame.left_bgr)
             t0 = time.perf_counter()
             if variant == "stereo":
-                pose = vio.add_frame(t_img, left, right_grey=_grey(frame.right_bgr))
+                pose = vio.add_frame(t_img, left, right_grey=to_grey(frame.right_bgr))
             else:
                 d = depth_store.get(frame.index, grey=False)
                 if d is None or d.stamp_ns != frame.stamp_ns:  # joined by stamp (integer ns), never by index only
@@ -240,7 +191,7 @@ def _run_vio(job: Job, inputs: RunInputs, seq: RosarioSequence, log: _FrameLog) 
                     if r is None or r.stamp_ns != frame.stamp_ns:
                         raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
                                            f"{frame.stamp_ns} ns")
-                    sigma = sigma_model.filled_sigma(d.depth_m, r.valid, inputs.inpaint_method)
+                    sigma = sigma_model.filled_sigma(d.depth_m, r.valid, plan.inpaint_method)
                     measured = r.valid
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma,
                                      depth_measured=measured)
@@ -266,73 +217,62 @@ def imu_samples_through(imu_stamps_ns: np.ndarray, frame_stamp_ns: int, start: i
     return max(int(np.searchsorted(imu_stamps_ns, np.int64(frame_stamp_ns), side="right")), start)
 
 
-def _grey(bgr: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if bgr.ndim == 3 else bgr
-
-
-def _run_odometry(inputs: RunInputs, seq: RosarioSequence) -> Trajectory:
-    R = np.asarray(inputs.R_base_imu) if inputs.R_base_imu is not None else None
+def _run_odometry(plan: RunPlan, seq: RosarioSequence) -> Trajectory:
+    R = np.asarray(plan.R_base_imu) if plan.R_base_imu is not None else None
     odom = seq.odom_array()
-    if inputs.max_frames is not None:
-        t_end = (seq.start_ns + round(inputs.max_frames * 1e9 / 15.0)) / 1e9
+    if plan.max_frames is not None:  # the odometry of the first max_frames camera frames' time span
+        t_end = (seq.start_ns + round(plan.max_frames * 1e9 / RATE_CAMERA_HZ)) / 1e9
         odom = odom[odom[:, 0] <= t_end]
     return run_odometry_ekf(odom, seq.imu_array(), R_base_imu=R).trajectory
 
 
 def run_job(job: Job) -> dict[str, Any]:
-    """Run one job (see the module docstring) and return its record as a dict."""
+    """Run one job (see the module docstring) from its plan and return its record as a dict."""
     if job.variant not in VARIANTS:
         raise AgrivioError(f"unknown variant {job.variant!r}; choose from {', '.join(VARIANTS)}")
-    inputs = RunInputs.from_options(job.options)
+    plan = job.plan
+    if not isinstance(plan, RunPlan):
+        raise AgrivioError(f"{job.label}: the job carries no run plan (jobs come from pipeline.run_sequence.plan_jobs)")
     import cv2
 
     cv2.setNumThreads(1)  # one run = one core: runs are parallelised across processes, not inside OpenCV
     out = Path(job.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    seq = RosarioSequence(inputs.bag, camchain=inputs.camchain)
+    seq = RosarioSequence(plan.bag, camchain=plan.camchain)
     log = _FrameLog()
     failure = None
     if job.variant == "odometry":
-        est = _run_odometry(inputs, seq)
-        lever = inputs.lever_arm_base
+        est = _run_odometry(plan, seq)
     else:
-        est, failure = _run_vio(job, inputs, seq, log)
-        lever = inputs.lever_arm_imu
+        est, failure = _run_vio(job, plan, seq, log)
         log.save(out / FRAMES_NAME)
     t_run = time.perf_counter() - t_start
     if len(est.stamps_s):
         frame_name = "base_link" if job.variant == "odometry" else "IMU"
         write_text_atomic(out / ESTIMATE_NAME, format_tum(est, header=f"agrivio {job.label} ({frame_name} frame)"))
     metrics: dict[str, Any] = {}
-    # The VIO's 15 Hz poses always fall within 20 ms of a 5 Hz GPS fix: nearest-stamp association, the dataset
-    # authors' protocol. Wheel odometry runs at 10 Hz on its own clock phase, so its poses may all sit > 20 ms
-    # from every fix: there the GPS reference is interpolated (linearly, gaps ≤ 0.5 s) at the estimate's stamps.
-    eval_options = EvalOptions(align="se3", max_diff_s=0.02, lever_arm_m=lever,
-                               interpolate=job.variant == "odometry")
-    if failure is None and inputs.gt is not None:
+    eval_options = plan.eval_options(job.variant)
+    if failure is None and plan.gt is not None:
         if len(est.stamps_s) < 3:
             failure = f"the filter produced {len(est.stamps_s)} poses (never initialised?)"
         else:
-            metrics = evaluate(read_tum(inputs.gt), est, eval_options).metrics()
-    settings = {"variant": job.variant, "inputs": inputs.to_options(), "eval": eval_options.to_dict()}
+            metrics = evaluate(read_tum(plan.gt), est, eval_options).metrics()
+    settings = {"variant": job.variant, "inputs": plan.variant_inputs(job.variant), "eval": eval_options.to_dict()}
     if job.variant != "odometry":
-        settings["msckf"] = load_config(inputs.msckf_config).to_flat_dict()
+        settings["msckf"] = plan.msckf.to_flat_dict()
     record = RunRecord(
         sequence=job.sequence, variant=job.variant, seed=job.seed,
         status="failed" if failure else "ok", failure_reason=failure,
-        inpaint_method=inputs.inpaint_method if job.variant == "depth-inpainted" else None,
+        inpaint_method=plan.inpaint_method if job.variant == "depth-inpainted" else None,
         config_hash=config_hash(settings), code_version=code_version(), metrics=metrics,
         timings={"total_s": time.perf_counter() - t_start, "run_s": t_run, **log.timing_summary()},
         estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
-        gt_path=str(Path(inputs.gt).resolve()) if inputs.gt else None,
+        gt_path=str(Path(plan.gt).resolve()) if plan.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
                "frames": int(len(log.stamps)), "feature_depth": log.depth_summary(),
-               "chi2_gate": log.gate_summary(), **{k: job.options.get(k) for k in _RECORD_OPTIONS},
-               "job": {"source": job.source, **{k: v for k, v in job.options.items()
-                                                if k != "R_base_imu" and k not in _RECORD_OPTIONS}}},
+               "chi2_gate": log.gate_summary(), **{k: job.options.get(k) for k in RECORD_FIELDS},
+               "job": job_description(job)},
     )
     return record.to_dict()
 
@@ -357,4 +297,4 @@ def lever_arms_from_tf(seq: RosarioSequence) -> dict[str, Any]:
     return out
 
 
-__all__ = ["RunInputs", "VARIANTS", "lever_arms_from_tf", "run_job"]
+__all__ = ["VARIANTS", "lever_arms_from_tf", "run_job"]

@@ -1,9 +1,11 @@
 """The whole chain for one or more sequences: read → depth (cached) → inpaint (cached) → runs → records → report.
 
-``prepare_sequence`` resolves a source (a Rosario bag with its GT file, or a simulator preset) and fills the depth
-and inpainted-depth caches once; ``plan_jobs`` expands variants × seeds into batch jobs whose run folders live under
-``OUT/<sequence>/<variant>/seed<k>/``; ``run_matrix`` runs them with :mod:`pipeline.batch` and writes the
-comparison report with :mod:`eval`.
+``run_matrix`` checks the options and resolves the MSCKF ``--config`` once; ``prepare_sequence`` resolves a source
+(a Rosario bag with its GT file, or a simulator preset), builds its :class:`pipeline.run_plan.RunPlan` (every setting
+of its runs, resolved, with the input-key parts) before any stage runs, then fills the depth and inpainted-depth
+caches from that plan; ``plan_jobs`` expands variants × seeds into batch jobs carrying the plan, whose run folders
+live under ``OUT/<sequence>/<variant>/seed<k>/``; ``run_matrix`` runs them with :mod:`pipeline.batch` and writes
+the comparison report with :mod:`eval`.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from msckf.config import MsckfConfig
 from pipeline.bag_reader import RosarioSequence
 from pipeline.batch import INPUT_KEY, Job, failed_record, run_jobs
 from pipeline.data_quality import check_stereo_pairing, sequence_quality
@@ -26,10 +29,11 @@ from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams, ensure_inpainted
 from pipeline.paths import ROSARIO_CAMCHAIN
-from pipeline.run_job import VARIANTS, RunInputs, lever_arms_from_tf, run_job
-from pipeline.run_key import code_fingerprint, input_key, job_key_parts, sequence_key_parts
+from pipeline.run_job import VARIANTS, lever_arms_from_tf, run_job
+from pipeline.run_key import code_fingerprint, input_key, sequence_key_parts
+from pipeline.run_plan import RunPlan
 from pipeline.sources import ResolvedSource, resolve_source
-from pipeline.validate import check_ground_truth, check_msckf_config, check_output_dir, check_positive_int
+from pipeline.validate import check_ground_truth, check_output_dir, check_positive_int, resolve_msckf_config
 
 DEFAULT_VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 
@@ -50,18 +54,26 @@ class SequenceSpec:
 class PreparedSequence:
     """A sequence whose depth (and inpainted depth) caches are complete (up to ``max_frames``).
 
-    ``key_parts`` are the sequence-level parts of every run's input key (:mod:`pipeline.run_key`); ``quality`` is
-    the bag's data-quality summary (:mod:`pipeline.data_quality`).
+    ``plan`` holds every resolved setting of its runs (:class:`pipeline.run_plan.RunPlan`), the sequence-level
+    input-key parts and the data-quality summary among them; the stage measurements are kept beside it.
     """
 
     name: str
     source: ResolvedSource
-    inputs: RunInputs
+    plan: RunPlan
     n_frames: int
     stage_timings: dict[str, float] = field(default_factory=dict)
     depth_stats: dict[str, Any] = field(default_factory=dict)
-    key_parts: dict[str, Any] = field(default_factory=dict)
-    quality: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def key_parts(self) -> dict[str, Any]:
+        """The sequence-level parts of every run's input key (:mod:`pipeline.run_key`)."""
+        return self.plan.key_parts or {}
+
+    @property
+    def quality(self) -> dict[str, Any]:
+        """The bag's data-quality summary (:mod:`pipeline.data_quality`)."""
+        return self.plan.quality or {}
 
 
 @dataclass
@@ -110,13 +122,44 @@ def check_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path
     return CheckedSequence(spec, src, quality, source_s)
 
 
+def build_plan(checked: CheckedSequence, variants: Sequence[str], cache_root: Path, inpaint_method: str,
+               msckf: MsckfConfig, msckf_config: str | Path | None = None, max_frames: int | None = None,
+               depth: DepthParams | None = None) -> RunPlan:
+    """The :class:`RunPlan` of a checked sequence: its identity, stage parameters, the resolved MSCKF config,
+    lever arms and input-key parts. Reads only the bag's index and ``tf_static`` (and hashes the small GT and
+    camchain files); no depth, inpainting or VIO work."""
+    src = checked.source
+    seq = RosarioSequence(src.bag, camchain=src.camchain)
+    depth = depth or DepthParams()
+    inpaint = InpaintParams(depth=depth, method=inpaint_method) if "depth-inpainted" in variants else None
+    levers = dict(src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq))
+    identity = seq.identity()
+    key_parts = sequence_key_parts(identity, src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, levers,
+                                   msckf.to_flat_dict(), depth.key(), inpaint.key() if inpaint else None,
+                                   code_fingerprint())
+    return RunPlan(name=checked.spec.name or src.name, source=src.source, bag=str(src.bag),
+                   gt=str(src.gt) if src.gt else None, camchain=str(src.camchain) if src.camchain else None,
+                   simulated=src.simulated, bag_identity=identity, cache_root=str(cache_root), max_frames=max_frames,
+                   depth=depth, inpaint=inpaint, msckf=msckf,
+                   msckf_config_path=str(msckf_config) if msckf_config is not None else None,
+                   key_parts=key_parts, quality=checked.quality, **levers)
+
+
 def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path, inpaint_method: str = "paper",
-                     msckf_config: str | None = None, max_frames: int | None = None,
-                     progress: bool = True, checked: CheckedSequence | None = None) -> PreparedSequence:
-    """Fill the caches the variants need (depth for depth-*, inpainting for depth-inpainted), frames
-    ``0 .. max_frames-1`` only when ``max_frames`` is given. ``checked``: the result of :func:`check_sequence`
-    (run now when None)."""
+                     msckf_config: str | Path | None = None, max_frames: int | None = None,
+                     progress: bool = True, checked: CheckedSequence | None = None,
+                     msckf: MsckfConfig | None = None) -> PreparedSequence:
+    """Plan the runs of a sequence, then fill the caches the variants need (depth for depth-*, inpainting for
+    depth-inpainted), frames ``0 .. max_frames-1`` only when ``max_frames`` is given.
+
+    The MSCKF config is resolved first (``msckf``: already resolved from ``msckf_config`` by the caller; else the
+    file is read here), before any check or stage: a bad ``--config`` fails before any depth work. ``checked``: the
+    result of :func:`check_sequence` (run now when None).
+    """
+    if msckf is None:
+        msckf = resolve_msckf_config(msckf_config)
     checked = checked or check_sequence(spec, variants, cache_root, progress)
+    plan = build_plan(checked, variants, cache_root, inpaint_method, msckf, msckf_config, max_frames)
     src = checked.source
     timings: dict[str, float] = {"source_s": checked.source_s}
     seq = RosarioSequence(src.bag, camchain=src.camchain)
@@ -127,11 +170,11 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
     if any(v.startswith("depth") for v in variants):
         t0 = time.perf_counter()
         # every frame present and intact: the hole ratios come from the chunk index, no image is decoded
-        cached_holes = DepthCache(cache_root, seq.identity(), DepthParams()).hole_ratios(n_frames)
+        cached_holes = DepthCache(cache_root, plan.bag_identity, plan.depth).hole_ratios(n_frames)
         if cached_holes is not None:  # a warm cache: no image is decoded here (the runs read what they need)
             holes = cached_holes.tolist()
         else:
-            holes = [frame.hole_ratio for frame in depth_stream(seq, DepthParams(), cache=True, progress=progress,
+            holes = [frame.hole_ratio for frame in depth_stream(seq, plan.depth, cache=True, progress=progress,
                                                                cache_root=cache_root, stop_index=max_frames)]
         timings["depth_s"] = time.perf_counter() - t0
         if holes:
@@ -140,47 +183,36 @@ def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Pa
             h = np.asarray(holes)
             depth_stats = {"hole_ratio_median": float(np.median(h)), "hole_ratio_p10": float(np.percentile(h, 10)),
                            "hole_ratio_p90": float(np.percentile(h, 90)), "frames": int(h.size)}
-    if "depth-inpainted" in variants:
+    if plan.inpaint is not None:
         t0 = time.perf_counter()
         stats: dict[str, Any] = {}
-        ensure_inpainted(seq, InpaintParams(method=inpaint_method), cache_root, progress=progress, stats=stats,
-                         stop_index=max_frames)
+        ensure_inpainted(seq, plan.inpaint, cache_root, progress=progress, stats=stats, stop_index=max_frames)
         timings["inpaint_s"] = time.perf_counter() - t0
         depth_stats["inpainted_frames"] = {"computed": int(stats.get("computed", 0)),
                                            "cached": int(stats.get("cached", 0))}
         if stats.get("computed"):
             timings["inpaint_ms_per_frame"] = 1e3 * stats["compute_s"] / stats["computed"]
-    levers = src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq)
-    inputs = RunInputs(bag=str(src.bag), gt=str(src.gt) if src.gt else None,
-                       camchain=str(src.camchain) if src.camchain else None, cache_root=str(cache_root),
-                       inpaint_method=inpaint_method if "depth-inpainted" in variants else None,
-                       msckf_config=msckf_config, max_frames=max_frames, **levers)
-    key_parts = sequence_key_parts(
-        seq.identity(), src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, dict(levers),
-        check_msckf_config(msckf_config), DepthParams().key(),
-        InpaintParams(method=inpaint_method).key() if "depth-inpainted" in variants else None, code_fingerprint())
-    return PreparedSequence(spec.name or src.name, src, inputs, n_frames, timings, depth_stats, key_parts,
-                            checked.quality)
+    return PreparedSequence(plan.name, src, plan, n_frames, timings, depth_stats)
 
 
 def plan_jobs(prepared: PreparedSequence, variants: Sequence[str], seeds: Sequence[int], out_dir: Path,
               folder_suffix: str = "") -> list[Job]:
-    """One job per variant × seed; each carries its input key (and only the options that apply to it).
+    """One job per variant × seed, each carrying the sequence's :class:`RunPlan` (what the worker runs from) and
+    a JSON description for its record: the inputs that apply to the variant, its input key and parts.
 
     Run folders are ``OUT/<sequence>/<variant><folder_suffix>/seed<k>``; a suffix keeps the runs of a second
     inpainting method (e.g. ``-telea``) beside those of the first.
     """
+    plan = prepared.plan
     jobs = []
     for variant in variants:
         for seed in seeds:
             folder = out_dir / prepared.name / f"{variant}{folder_suffix}" / f"seed{seed}"
-            options = prepared.inputs.to_options()
-            if variant != "depth-inpainted":
-                options.pop("inpaint_method")
-            parts = job_key_parts(prepared.key_parts, variant, int(seed))
+            parts = plan.job_key_parts(variant, int(seed))
+            options = plan.variant_inputs(variant)
             options.update({INPUT_KEY: input_key(parts), "input_key_parts": parts,
-                            "data_quality": prepared.quality, "simulated": prepared.source.simulated})
-            jobs.append(Job(prepared.name, prepared.source.source, variant, int(seed), str(folder), options))
+                            "data_quality": plan.quality, "simulated": plan.simulated})
+            jobs.append(Job(prepared.name, plan.source, variant, int(seed), str(folder), options, plan=plan))
     return jobs
 
 
@@ -192,7 +224,7 @@ def write_sequence_manifest(prepared: PreparedSequence, out_dir: Path) -> None:
         "name": prepared.name, "source": prepared.source.source, "bag": str(prepared.source.bag),
         "gt": str(prepared.source.gt) if prepared.source.gt else None, "simulated": prepared.source.simulated,
         "n_frames": prepared.n_frames, "stage_timings": prepared.stage_timings, "depth": prepared.depth_stats,
-        "inputs": prepared.inputs.to_options(), "input_key_parts": prepared.key_parts,
+        "inputs": prepared.plan.inputs(), "input_key_parts": prepared.key_parts,
         "data_quality": prepared.quality,
     })
 
@@ -243,7 +275,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
     for method in ([inpaint_method] if "depth-inpainted" in variants else []) + extra:
         if method not in METHODS:
             raise AgrivioError(f"unknown inpainting method {method!r}; available: {', '.join(sorted(METHODS))}")
-    check_msckf_config(msckf_config)
+    msckf = resolve_msckf_config(msckf_config)  # the one read of --config; every run gets this object
     check_output_dir(out_dir)
     user_errors = user_error_types()
     failed: list[dict[str, Any]] = []
@@ -260,7 +292,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
     for c in tqdm(checked, desc="sequences", unit="seq", disable=not progress or len(checked) < 2):
         try:
             prepared = prepare_sequence(c.spec, variants, cache_root, inpaint_method, msckf_config, max_frames,
-                                        progress, checked=c)
+                                        progress, checked=c, msckf=msckf)
         except user_errors as exc:
             if not keep_going:
                 raise
@@ -271,7 +303,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
         for method in extra:
             try:
                 more = prepare_sequence(c.spec, ["depth-inpainted"], cache_root, method, msckf_config, max_frames,
-                                        progress, checked=c)
+                                        progress, checked=c, msckf=msckf)
             except user_errors as exc:
                 if not keep_going:
                     raise

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from msckf.camera import PinholeRadtan, StereoRig
+from pipeline.rosario_layout import RATE_CAMERA_HZ
 
 _TEXTURE_SIZE = 1024  # texels per side of the tiled texture
 
@@ -252,7 +253,7 @@ def write_synthetic_bag(path: Path | str, n_frames: int = 8, rig: StereoRig | No
     rig = rig or rig_from_camchain(ROSARIO_CAMCHAIN)
     rng = np.random.default_rng(seed)
     renderer = StereoRenderer(rig, scene)
-    dt_cam = 1.0 / 15.0
+    dt_cam = 1.0 / RATE_CAMERA_HZ
     duration = n_frames * dt_cam
 
     def stamps(rate_hz: float) -> np.ndarray:

@@ -9,12 +9,16 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pipeline.errors import AgrivioError
+
+if TYPE_CHECKING:
+    from msckf.config import MsckfConfig
 
 #: Fewest ground-truth poses inside the bag's time span for an evaluation (SE(3) alignment needs 3).
 MIN_GT_POSES = 3
@@ -29,17 +33,39 @@ def check_positive_int(name: str, value: Any, allow_none: bool = True, minimum: 
     return int(value)
 
 
-def check_msckf_config(path: str | Path | None) -> dict[str, Any]:
-    """Parse and validate the MSCKF ``--config`` YAML once; return the resolved configuration as a dict.
+def check_unknown_keys(given: Iterable[str], known: Iterable[str], where: str, show_known: bool = False,
+                       error: type[Exception] = AgrivioError) -> None:
+    """Reject keys of a user's mapping that are not in ``known``: one error naming ``where`` and every bad key.
+
+    The message is ``"<where>: unknown key(s) a, b"`` (sorted), plus ``"; known: …"`` when ``show_known``;
+    ``error`` is the exception type raised (``AgrivioError`` by default: one line, exit 2).
+    """
+    known_set = set(known)
+    bad = sorted(set(given) - known_set)
+    if bad:
+        tail = f"; known: {', '.join(sorted(known_set))}" if show_known else ""
+        raise error(f"{where}: unknown key(s) {', '.join(bad)}{tail}")
+
+
+def resolve_msckf_config(path: str | Path | None) -> "MsckfConfig":
+    """Parse and validate the MSCKF ``--config`` YAML once (defaults when None); return the resolved config.
+
+    The one place the file is read: the result travels in the :class:`pipeline.run_plan.RunPlan` of every run.
 
     Raises:
+        AgrivioError: the file does not exist.
         MsckfInputError: unknown key, wrong type or out-of-range value, naming the file and the key.
     """
     from msckf.config import load_config
 
     if path is not None and not Path(path).is_file():
         raise AgrivioError(f"{path}: msckf config file not found")
-    return load_config(path).to_flat_dict()
+    return load_config(path)
+
+
+def check_msckf_config(path: str | Path | None) -> dict[str, Any]:
+    """:func:`resolve_msckf_config` in its flat form (``MsckfConfig.to_flat_dict()``, what enters the run key)."""
+    return resolve_msckf_config(path).to_flat_dict()
 
 
 def check_output_dir(out_dir: Path) -> None:
@@ -82,4 +108,5 @@ def check_ground_truth(path: Path | str, bag_start_s: float, bag_end_s: float) -
     return inside
 
 
-__all__ = ["MIN_GT_POSES", "check_ground_truth", "check_msckf_config", "check_output_dir", "check_positive_int"]
+__all__ = ["MIN_GT_POSES", "check_ground_truth", "check_msckf_config", "check_output_dir", "check_positive_int",
+           "check_unknown_keys", "resolve_msckf_config"]

@@ -52,12 +52,13 @@ def test_record_round_trip_and_batch_compatibility() -> None:
     back = RunRecord.from_dict(d)
     assert back.to_dict() == rec.to_dict()
     assert back.metric("ate_rmse_m") == 0.5 and back.metric("ate_mean_m") is None
-    # the batch runner's failed record (pipeline.batch.failed_record) parses; the method comes from job.options
+    # the batch runner's failed record (pipeline.batch.failed_record) parses: the layout of an ok record
     batch = {"record_type": "run", "sequence": "s", "variant": "depth-inpainted", "seed": 2, "status": "failed",
-             "failure_reason": "worker died", "timings": {}, "job": {"options": {"inpaint_method": "telea"}}}
+             "failure_reason": "worker died", "inpaint_method": "telea", "timings": {},
+             "job": {"source": "s.bag", "inpaint_method": "telea"}}
     fr = RunRecord.from_dict(batch)
     assert not fr.ok and fr.inpaint_method == "telea" and fr.display_variant() == "depth-inpainted[telea]"
-    assert fr.extra["job"]["options"]["inpaint_method"] == "telea"
+    assert fr.extra["job"]["inpaint_method"] == "telea"
     with pytest.raises(EvalInputError, match="f.json: run record lacks variant"):
         RunRecord.from_dict({"record_type": "run", "sequence": "s"}, source="f.json")
     with pytest.raises(EvalInputError, match="status"):

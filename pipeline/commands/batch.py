@@ -38,6 +38,7 @@ from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
 from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
+from pipeline.validate import check_unknown_keys
 
 _KEYS = {"out", "runs", "seeds", "variants", "inpaint", "msckf_config", "executor", "workers", "ray_address",
          "max_frames", "sequences"}
@@ -77,9 +78,7 @@ def load_batch_config(path: Path) -> dict[str, Any]:
         raise AgrivioError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(cfg, dict):
         raise AgrivioError(f"{path}: a batch config is a mapping (see `agrivio batch --help`)")
-    unknown = set(cfg) - _KEYS
-    if unknown:
-        raise AgrivioError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(_KEYS))}")
+    check_unknown_keys(cfg, _KEYS, str(path), show_known=True)
     sequences = cfg.get("sequences")
     if not isinstance(sequences, list) or not sequences:
         raise AgrivioError(f"{path}: 'sequences' must be a list of at least one sequence (got "
@@ -93,9 +92,7 @@ def load_batch_config(path: Path) -> dict[str, Any]:
             item = {"source": item}
         if not isinstance(item, dict) or "source" not in item:
             raise AgrivioError(f"{path}: sequences[{i}] needs a 'source' (bag path or preset)")
-        bad = set(item) - _SEQ_KEYS
-        if bad:
-            raise AgrivioError(f"{path}: sequences[{i}]: unknown key(s) {', '.join(sorted(bad))}")
+        check_unknown_keys(item, _SEQ_KEYS, f"{path}: sequences[{i}]")
         where = f"{path}: sequences[{i}]"
         for key in ("source", "name", "gt", "camchain"):
             if item.get(key) is not None and not isinstance(item[key], str):

@@ -85,8 +85,7 @@ def load_run(run_dir: Path) -> LoadedRun:
         raise AgrivioError(f"{rec_path}: no run record here (is this a run folder OUT/<seq>/<variant>/seed<k>?)")
     except json.JSONDecodeError as exc:
         raise AgrivioError(f"{rec_path}: not valid JSON ({exc})") from None
-    job = record.get("job") or {}
-    opts = job.get("options", job)
+    opts = record.get("job") or {}  # the run's inputs (bag, camchain, cache root, method), as run_job recorded them
     variant = str(record.get("variant"))
     name = f"{variant} seed{record.get('seed')}"
     est_path = run_dir / ESTIMATE_NAME

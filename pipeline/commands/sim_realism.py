@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import AgrivioError
+from pipeline.rosario_layout import RATE_CAMERA_HZ
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         seq = _sequence(preset, args)
         rig = seq.rig()
         cfg = seq.config
-        first_moving = int(np.ceil((cfg.route.still_s + 0.5) * 15.0))
+        first_moving = int(np.ceil((cfg.route.still_s + 0.5) * RATE_CAMERA_HZ))
         n = seq.n_frames
         gallery_index = min(n - 1, max(first_moving, int(0.6 * n)))
         rep = SequenceRealism(preset)

@@ -22,6 +22,8 @@ import dataclasses
 from dataclasses import dataclass, fields
 from typing import Any
 
+from pipeline.validate import check_unknown_keys
+
 
 @dataclass(frozen=True)
 class FieldConfig:
@@ -349,9 +351,8 @@ class SimConfig:
         nested = {"field": FieldConfig, "route": RouteConfig, "motion": MotionConfig, "camera": CameraConfig,
                   "lighting": LightingConfig, "imu": ImuConfig, "gps": GpsConfig, "odom": OdomConfig,
                   "render": RenderConfig}
+        check_unknown_keys(data, sub_types, "simulator config", error=ValueError)
         for key, value in data.items():
-            if key not in sub_types:
-                raise ValueError(f"unknown simulator config key {key!r}")
             if key in nested:
                 kwargs[key] = _sub_from_dict(nested[key], value, key)
             else:
@@ -375,9 +376,6 @@ def _sub_from_dict(kind: type, value: Any, name: str) -> Any:
         return value
     if not isinstance(value, dict):
         raise ValueError(f"simulator config section {name!r} must be a mapping")
-    known = {f.name for f in fields(kind)}
-    bad = sorted(set(value) - known)
-    if bad:
-        raise ValueError(f"unknown keys in simulator config section {name!r}: {bad}")
+    check_unknown_keys(value, (f.name for f in fields(kind)), f"simulator config section {name!r}", error=ValueError)
     conv = {k: (tuple(v) if isinstance(v, list) else v) for k, v in value.items()}
     return kind(**conv)

@@ -6,7 +6,6 @@ folder renamed into place at the end.
 
 from __future__ import annotations
 
-import io
 import os
 import shutil
 import tempfile
@@ -135,15 +134,6 @@ class DepthChunkReader:
     def stamp_ns(self, index: int) -> int:
         data = self._load(index // self.chunk)
         return int(data["stamp_ns"][np.flatnonzero(data["index"] == index)[0]])
-
-
-def tum_text(stamps_s: np.ndarray, positions: np.ndarray, quats_xyzw: np.ndarray, header: str) -> str:
-    """TUM lines ``t x y z qx qy qz qw`` with 9 decimals (like the authors' ``cut_gt.py``), ``#`` header."""
-    buf = io.StringIO()
-    for line in header.splitlines():
-        buf.write(f"# {line}\n")
-    np.savetxt(buf, np.column_stack([stamps_s, positions, quats_xyzw]), fmt="%1.9f")
-    return buf.getvalue()
 
 
 # ---- EuRoC / ASL ---------------------------------------------------------------------------------------------------

@@ -39,13 +39,15 @@ import scipy
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
+from eval.trajectory import format_tum_rows
 from msckf.camera import StereoRig
 from pipeline.atomic import write_json_atomic, write_text_atomic
 from pipeline.calibration import camchain_yaml, rig_from_camchain
 from pipeline.errors import AgrivioError
 from pipeline.paths import ROSARIO_CAMCHAIN, cache_dir
+from pipeline.rosario_layout import RATE_CAMERA_HZ
 from pipeline.sim.config import SimConfig
-from pipeline.sim.export import DepthChunkReader, DepthChunkWriter, EurocWriter, tum_text
+from pipeline.sim.export import DepthChunkReader, DepthChunkWriter, EurocWriter
 from pipeline.sim.imu import ImuSimulator
 from pipeline.sim.mount import camera_poses, mount_transform
 from pipeline.sim.presets import get_preset
@@ -257,7 +259,7 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
 
     dur = cfg.duration_s
     t_imu = np.arange(int(np.floor(dur * cfg.imu.rate_hz + 1e-9)) + 1) / cfg.imu.rate_hz
-    t_cam = _stamps(dur, 15.0, CAM_PHASE_S)
+    t_cam = _stamps(dur, RATE_CAMERA_HZ, CAM_PHASE_S)
     if max_frames is not None:
         t_cam = t_cam[:max_frames]
     t_gps = _stamps(dur, cfg.gps.rate_hz, GPS_PHASE_S)
@@ -271,12 +273,12 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     cam_ns = ns(t_cam + cfg.camera.time_offset_s)
     imu_ns, gps_ns, odom_ns = ns(t_imu), ns(t_gps), ns(t_odom)
 
-    ae = _AutoExposure(cfg.camera.ae_target, cfg.camera.ae_tau_s, 1.0 / 15.0)
+    ae = _AutoExposure(cfg.camera.ae_target, cfg.camera.ae_tau_s, 1.0 / RATE_CAMERA_HZ)
     depth_writer = DepthChunkWriter(root / "depth")
     for old in (root / "depth").glob("chunk_*.npz"):
         old.unlink()
     top_speed = top_planned_speed(traj, cfg.duration_s)
-    euroc = EurocWriter(root / "euroc", rig, cfg.imu, 15.0, max_speed_m_s=top_speed) if export_euroc else None
+    euroc = EurocWriter(root / "euroc", rig, cfg.imu, RATE_CAMERA_HZ, max_speed_m_s=top_speed) if export_euroc else None
     imu_rows: list[np.ndarray] = []
     cam_poses_E = np.zeros((len(t_cam), 4, 4))
     bag_path = root / f"{name}.bag"
@@ -385,14 +387,14 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
         accel_true[sl] = kin.specific_force
     header = (f"agrivio simulator {cfg.name} seed {seed}: IMU-frame pose (x up, y right, z forward) in ENU, origin "
               "at the true GPS antenna position of the first fix\ntimestamp[s] x y z qx qy qz qw")
-    write_text_atomic(root / "gt_body.tum", tum_text(imu_ns / 1e9, p_E, q_E, header))
+    write_text_atomic(root / "gt_body.tum", format_tum_rows(imu_ns / 1e9, p_E, q_E, header))
     ident = np.tile([0.0, 0.0, 0.0, 1.0], (len(t_gps), 1))
     meas0 = gps.meas_enu[0] if len(t_gps) else np.zeros(3)
     gt_name = f"{name}_gt.txt"
-    write_text_atomic(root / gt_name, tum_text(gps_ns / 1e9, gps.meas_enu - meas0, ident,
+    write_text_atomic(root / gt_name, format_tum_rows(gps_ns / 1e9, gps.meas_enu - meas0, ident,
                                                "GPS-RTK antenna positions (measured), ENU, origin at the first fix\n"
                                                "timestamp[s] x y z qx qy qz qw"))
-    write_text_atomic(root / "gt_antenna_true.tum", tum_text(gps_ns / 1e9, gps.true_enu, ident,
+    write_text_atomic(root / "gt_antenna_true.tum", format_tum_rows(gps_ns / 1e9, gps.true_enu, ident,
                                                             "true GPS antenna positions, ENU, same origin as "
                                                             "gt_body.tum\ntimestamp[s] x y z qx qy qz qw"))
     truth = {"imu_stamp_ns": imu_ns, "p_E": p_E, "q_E_xyzw": q_E, "v_E": v_E, "gyro_true": gyro_true,
