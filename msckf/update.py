@@ -440,18 +440,17 @@ def null_space_project_active(batch: FeatureBatch, n_clones: int) -> tuple[np.nd
     lut = np.zeros(n_clones + 1, dtype=np.int64)
     lut[active] = np.arange(len(active))
     ncol = 6 * len(active)
-    order = np.argsort(~rows, axis=1, kind="stable")                     # valid rows first, in their order
-    # [H_f | H_x | r] per feature, H_x on the active clone columns (each observation's 6 at its clone's block)
-    M = np.zeros((k, m, 3 + ncol + 1))
-    M[..., :3] = np.where(rows[..., None], batch.Hf[use].reshape(k, m, 3), 0.0)
-    Hx = np.where(rows[..., None], batch.Hx[use].reshape(k, m, 6), 0.0)
-    pos = np.repeat(pos_f, R, axis=1)                                    # (k, m) clone of each row
-    real = pos < n_clones
-    col = 3 + 6 * lut[np.where(real, pos, 0)][..., None] + np.arange(6)
-    ff, rr = np.nonzero(real)
-    M[ff[:, None], rr[:, None], col[ff, rr]] = Hx[ff, rr]
-    M[..., -1] = np.where(rows, batch.r[use].reshape(k, m), 0.0)
-    M = M[np.arange(k)[:, None], order]
+    # [H_f | H_x | r] per feature, its valid rows first (in their order), H_x on the active clone columns (each
+    # observation's 6 at its clone's block); rows past the longest feature's valid rows would stay zero
+    m_used = int(n_valid.max())
+    ff, rr = np.nonzero(rows)                                            # valid rows, feature-major
+    dest = (np.cumsum(rows, axis=1) - 1)[ff, rr]                          # their place among the valid rows
+    clone = lut[np.repeat(pos_f, R, axis=1)[ff, rr]]                     # padding rows are never valid
+    M = np.zeros((k, m_used, 3 + ncol + 1))
+    M[ff, dest, :3] = batch.Hf[use].reshape(k, m, 3)[ff, rr]
+    M[ff[:, None], dest[:, None], 3 + 6 * clone[:, None] + np.arange(6)] = batch.Hx[use].reshape(k, m, 6)[ff, rr]
+    M[ff, dest, -1] = batch.r[use].reshape(k, m)[ff, rr]
+    m = m_used
     for j in range(3):  # Householder QR of H_f, applied to the whole row block
         x = M[:, j:, j]
         alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * np.linalg.norm(x, axis=1)

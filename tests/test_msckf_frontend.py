@@ -505,7 +505,20 @@ def test_matching_candidates_in_rounds_selects_what_matching_all_would(wall_seq)
     pick_all = np.flatnonzero(ok_all)[top_per_group(cell[ok_all], resp[ok_all], quota)]
     pick_rounds = np.flatnonzero(ok_rounds)[top_per_group(cell[ok_rounds], resp[ok_rounds], quota)]
     assert np.array_equal(pick_all, pick_rounds)
-    assert ok_rounds.sum() < ok_all.sum()               # and fewer points were matched
+    # The first round's width follows the last frame's match rate; whatever the rate, the selection is the same.
+    for rate in (0.25, 0.5, 1.0):
+        fe._candidate_match_rate = rate
+        ok_r = fe._match_candidates(left, right, _Tracks.empty(), fe._new_tracks(px, undistort=False), cell)
+        pick_r = np.flatnonzero(ok_r)[top_per_group(cell[ok_r], resp[ok_r], quota)]
+        assert np.array_equal(pick_all, pick_r)
+    # With a good right image (and the rate it gives), at most two KLT calls and fewer points than matching every
+    # candidate.
+    calls = []
+    klt = fe._klt
+    fe._klt = lambda *a: (calls.append(len(a[2])), klt(*a))[1]
+    fe._candidate_match_rate = 1.0
+    fe._match_candidates(left, wall_seq.right[0], _Tracks.empty(), fe._new_tracks(px, undistort=False), cell)
+    assert 1 <= len(calls) <= 2 and sum(calls) < len(px)
 
 
 def test_depth_frontend_reports_each_features_sigma_and_whether_its_depth_was_measured(wall_seq):
