@@ -17,7 +17,7 @@ the ATE show whether the outputs are identical. Only ``msckf`` is swapped; ``pip
 ``eval`` are this tree's.
 
 Usage: .venv/bin/python benchmarks/bench_vio.py [--preset rosario-like-02] [--duration 10] [--repeats 3]
-       [--variants stereo,depth-raw] [--baseline-src DIR] [--out PATH]
+       [--variants stereo,depth-raw] [--baseline-src DIR] [--config JSON] [--baseline-config JSON] [--out PATH]
 Prints a table and writes JSON (default: <cache>/benchmarks/bench_vio.json).
 """
 
@@ -137,11 +137,11 @@ class _Using:
 class _Pass:
     """One VIO instance of one tree over the sequence, with its per-frame timings and poses."""
 
-    def __init__(self, name: str, mods: dict, rig_pickle: bytes, variant: str) -> None:
+    def __init__(self, name: str, mods: dict, rig_pickle: bytes, variant: str, config: dict | None) -> None:
         self.name, self.mods, self.variant = name, mods, variant
         with _Using(mods):
             rig = pickle.loads(rig_pickle)  # an instance of this tree's StereoRig class
-            self.vio = mods["msckf.vio"].Msckf(None, rig, variant="stereo" if variant == "stereo" else "depth",
+            self.vio = mods["msckf.vio"].Msckf(config, rig, variant="stereo" if variant == "stereo" else "depth",
                                                seed=0)
         self.non_static = mods["msckf.init"].NonStaticStartError
         self.fe_cpu: list[float] = []
@@ -151,6 +151,7 @@ class _Pass:
         self.stages: dict[str, list[float]] = {}
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
+        self.tracks = hashlib.blake2b(digest_size=8)   # every frame's published features (front-end output)
 
     def imu(self, t_s: float, gyro: np.ndarray, accel: np.ndarray) -> None:
         with _Using(self.mods):
@@ -170,6 +171,8 @@ class _Pass:
             c1 = time.thread_time()
             pose = self.vio.add_features(obs)
             c2, w2 = time.thread_time(), time.perf_counter()
+        for a in (obs.ids, obs.cam0_xy, obs.cam1_xy, obs.depth_m, obs.source, obs.track_length):
+            self.tracks.update(np.ascontiguousarray(a).tobytes())
         if pose is None:
             return
         self.fe_cpu.append(1e3 * (c1 - c0))
@@ -201,11 +204,12 @@ class _Pass:
             "vio_cpu_median_ms": float(np.median(total)), "vio_cpu_mean_ms": float(np.mean(total)),
             "vio_cpu_p95_ms": float(np.percentile(total, 95)), "vio_wall_median_ms": float(np.median(self.wall)),
             "frontend_stage_wall_median_ms": {s: float(np.median(v)) for s, v in self.stages.items()},
-            "poses_digest": hashlib.blake2b(poses.tobytes(), digest_size=8).hexdigest(), "ate_rmse_m": ate,
+            "poses_digest": hashlib.blake2b(poses.tobytes(), digest_size=8).hexdigest(),
+            "tracks_digest": self.tracks.hexdigest(), "ate_rmse_m": ate,
         }
 
 
-def _run_variant(trees: dict, preset: str, duration_s: float, variant: str, max_frames: int | None,
+def _run_variant(trees: dict, configs: dict, preset: str, duration_s: float, variant: str, max_frames: int | None,
                  repeats: int) -> list[list[dict]]:
     """``repeats`` passes; in each, every tree's VIO takes each frame in turn (the order alternates per frame),
     so that all trees see the same machine load. Returns, per pass, one summary per tree plus paired ratios."""
@@ -215,7 +219,7 @@ def _run_variant(trees: dict, preset: str, duration_s: float, variant: str, max_
     lever = tuple(float(x) for x in np.asarray(lever).reshape(3)) if lever is not None else None
     out = []
     for _ in range(repeats):
-        passes = [_Pass(name, mods, rig_pickle, variant) for name, mods in trees.items()]
+        passes = [_Pass(name, mods, rig_pickle, variant, configs[name]) for name, mods in trees.items()]
         imu_ns, imu = data["imu_ns"], data["imu"]
         k_imu = 0
         for i, fr in enumerate(data["frames"]):
@@ -251,6 +255,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline-src", type=Path, default=None,
                     help="source tree of the version to compare against (its msckf runs in this process, frame by "
                          "frame alternately with this tree's)")
+    ap.add_argument("--config", type=json.loads, default=None,
+                    help='MSCKF overrides (JSON) for this tree, e.g. \'{"frontend": {"stereo_reuse_disparity": true}}\'')
+    ap.add_argument("--baseline-config", type=json.loads, default=None,
+                    help="MSCKF overrides (JSON) for the baseline (with --baseline-src . : an option A/B in one tree)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
     import cv2
@@ -262,9 +270,10 @@ def main(argv: list[str] | None = None) -> int:
     trees["current"] = _import_tree(None)
     results = []
     print(f"{'variant':10} {'tree':9} {'feat':>5} {'front ms':>8} {'back ms':>8} {'VIO ms':>7} {'frames/s':>8} "
-          f"{'p95':>6} {'wall':>6}  {'ATE m':>8}  poses")
+          f"{'p95':>6} {'wall':>6}  {'ATE m':>8}  poses / tracks digest")
     for variant in args.variants.split(","):
-        passes = _run_variant(trees, args.preset, args.duration, variant, args.max_frames, args.repeats)
+        configs = {"baseline": args.baseline_config, "current": args.config}
+        passes = _run_variant(trees, configs, args.preset, args.duration, variant, args.max_frames, args.repeats)
         best = min(passes, key=lambda res: res[-1]["vio_cpu_median_ms"])
         for res in passes:
             for r in res:
@@ -275,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{variant:10} {r['tree']:9} {r['features_mean']:5.0f} {r['frontend_cpu_median_ms']:8.2f} "
                   f"{r['backend_cpu_median_ms']:8.2f} {r['vio_cpu_median_ms']:7.2f} "
                   f"{1e3 / r['vio_cpu_median_ms']:8.1f} {r['vio_cpu_p95_ms']:6.1f} {r['vio_wall_median_ms']:6.1f}  "
-                  f"{ate:>8}  {r['poses_digest']}", flush=True)
+                  f"{ate:>8}  {r['poses_digest']} / {r['tracks_digest']}", flush=True)
         if len(best) == 2:
             b, c = best
             ratios = [res[0]["paired_median_ratio_baseline_over_current"] for res in passes
@@ -284,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
                 med = {k: float(np.median([x[k] for x in ratios])) for k in ("frontend", "backend", "vio")}
                 print(f"{variant:10} {'speed-up':9} {'':5} {med['frontend']:7.2f}x {med['backend']:7.2f}x "
                       f"{med['vio']:6.2f}x  (median over frames and passes of baseline/current, paired per frame; "
-                      f"poses {'identical' if b['poses_digest'] == c['poses_digest'] else 'differ'})", flush=True)
+                      f"tracks {'identical' if b['tracks_digest'] == c['tracks_digest'] else 'differ'}, poses "
+                      f"{'identical' if b['poses_digest'] == c['poses_digest'] else 'differ'})", flush=True)
     from pipeline.atomic import write_json_atomic
     from pipeline.paths import cache_dir
 
@@ -294,6 +304,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "whole VIO (front end + back end) per frame, CPU time of one thread",
         "preset": args.preset, "duration_s": args.duration, "repeats": args.repeats,
         "baseline_src": str(args.baseline_src) if args.baseline_src else None,
+        "config": args.config, "baseline_config": args.baseline_config,
         "numpy": np.__version__, "opencv": cv2.__version__, "python": platform.python_version(),
         "machine": platform.processor() or platform.machine(), "results": results,
     })
