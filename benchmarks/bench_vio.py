@@ -239,7 +239,9 @@ def _run_variant(trees: dict, configs: dict, preset: str, duration_s: float, var
                 r["paired_median_ratio_baseline_over_current"] = {
                     "frontend": float(np.median(np.asarray(b.fe_cpu) / np.asarray(c.fe_cpu))),
                     "backend": float(np.median(np.asarray(b.be_cpu) / np.asarray(c.be_cpu))),
-                    "vio": float(np.median(tb / tc))}
+                    "vio": float(np.median(tb / tc)),
+                    "vio_total": float(tb.sum() / tc.sum()),
+                    "backend_total": float(np.sum(b.be_cpu) / np.sum(c.be_cpu))}
         out.append(res)
     return out
 
@@ -290,9 +292,11 @@ def main(argv: list[str] | None = None) -> int:
             ratios = [res[0]["paired_median_ratio_baseline_over_current"] for res in passes
                       if "paired_median_ratio_baseline_over_current" in res[0]]
             if ratios:
-                med = {k: float(np.median([x[k] for x in ratios])) for k in ("frontend", "backend", "vio")}
+                med = {k: float(np.median([x[k] for x in ratios]))
+                       for k in ("frontend", "backend", "vio", "vio_total", "backend_total")}
                 print(f"{variant:10} {'speed-up':9} {'':5} {med['frontend']:7.2f}x {med['backend']:7.2f}x "
                       f"{med['vio']:6.2f}x  (median over frames and passes of baseline/current, paired per frame; "
+                      f"whole-sequence CPU: back end {med['backend_total']:.2f}x, VIO {med['vio_total']:.2f}x; "
                       f"tracks {'identical' if b['tracks_digest'] == c['tracks_digest'] else 'differ'}, poses "
                       f"{'identical' if b['poses_digest'] == c['poses_digest'] else 'differ'})", flush=True)
     from pipeline.atomic import write_json_atomic

@@ -108,7 +108,9 @@ def detect_fast_in_cells(
             continue
         cx0, cy0 = max(x0 - _FAST_MARGIN, 0), max(y0 - _FAST_MARGIN, 0)
         cx1, cy1 = min(x1 + _FAST_MARGIN, width), min(y1 + _FAST_MARGIN, height)
-        kps = detector.detect(image[cy0:cy1, cx0:cx1])
+        # The detector drops masked corners itself (after non-maximum suppression, order kept), so fewer
+        # keypoint objects reach Python; the corners outside the cell (the margin) are dropped below.
+        kps = detector.detect(image[cy0:cy1, cx0:cx1], mask[cy0:cy1, cx0:cx1])
         if not kps:
             continue
         pts = cv2.KeyPoint_convert(kps).astype(np.float64) + (cx0, cy0)
@@ -116,7 +118,6 @@ def detect_fast_in_cells(
         xi = np.rint(pts[:, 0]).astype(np.int64)
         yi = np.rint(pts[:, 1]).astype(np.int64)
         keep = (xi >= x0) & (xi < x1) & (yi >= y0) & (yi < y1)
-        keep[keep] = mask[yi[keep], xi[keep]] > 0
         all_px.append(pts[keep])
         all_resp.append(resp[keep])
         all_cell.append(np.full(int(keep.sum()), cell, dtype=np.int64))
