@@ -258,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="source tree of the version to compare against (its msckf runs in this process, frame by "
                          "frame alternately with this tree's)")
     ap.add_argument("--config", type=json.loads, default=None,
-                    help='MSCKF overrides (JSON) for this tree, e.g. \'{"frontend": {"stereo_reuse_disparity": true}}\'')
+                    help="MSCKF overrides (JSON) for this tree, e.g. "
+                         "'{\"frontend\": {\"stereo_reuse_disparity\": true}}'")
     ap.add_argument("--baseline-config", type=json.loads, default=None,
                     help="MSCKF overrides (JSON) for the baseline (with --baseline-src . : an option A/B in one tree)")
     ap.add_argument("--out", type=Path, default=None)

@@ -474,8 +474,8 @@ def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -
     Only the columns of the clones the batch observes (``c``, 6 per clone) are non-zero in H, so the stacked QR
     and the update work on those: with ``h = H_c`` (r × c) after compression, ``S = h P_cc hᵀ + σ²I``,
     ``K = P_:c hᵀ S⁻¹``, and the Joseph form ``(I − KH) P (I − KH)ᵀ + σ² K Kᵀ`` expands, with
-    ``A = P − K (P_:c hᵀ)ᵀ``, to ``A − (A_:c hᵀ) Kᵀ + σ² K Kᵀ``: O(n² r) instead of O(n³). The same update as the
-    full-width matrices, equal to rounding.
+    ``A = P − K (P_:c hᵀ)ᵀ``, to ``A − (A_:c hᵀ) Kᵀ + σ² K Kᵀ``: O(n² r) instead of O(n³). The same update as
+    the full-width matrices, equal to rounding.
 
     Args:
         P: (21 + 6C, 21 + 6C) covariance. batch: the gated features. sigma: measurement σ (normalised units).

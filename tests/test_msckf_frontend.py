@@ -604,3 +604,36 @@ def test_sample_depth_matches_a_per_feature_reference(sampling):
     assert np.array_equal(np.isnan(z), np.isnan(z_ref)) and np.allclose(z, z_ref, equal_nan=True, rtol=1e-12)
     assert {DepthReject.OK, DepthReject.OUTSIDE, DepthReject.INVALID, DepthReject.EDGE, DepthReject.RANGE} \
         <= set(why.tolist())
+
+
+def test_fast_detection_per_cell_crops_and_whole_image_agree(wall_seq):
+    """detect_fast_in_cells crops the requested cells (few cells) or detects once over the whole image (more
+    than half the cells): both give the same corners, responses, cells and order as a plain whole-image FAST
+    kept where the mask allows and the cell was requested, grouped cell by cell in the requested order."""
+    import cv2
+
+    from msckf.frontend_grid import _detect_fast_whole_image, detect_fast_in_cells, exclusion_mask
+
+    img = wall_seq.left[0]
+    h, w = img.shape
+    fast = cv2.FastFeatureDetector_create(threshold=10, nonmaxSuppression=True)
+    rng = np.random.default_rng(5)
+    mask = exclusion_mask(rng.uniform([0, 0], [w, h], (300, 2)), w, h, 2)
+    kps = fast.detect(img)
+    ref_px = cv2.KeyPoint_convert(kps).astype(np.float64)
+    ref_resp = np.array([k.response for k in kps])
+    ref_cell = cell_index(ref_px, w, h, 4, 5)
+    allowed = mask[ref_px[:, 1].astype(int), ref_px[:, 0].astype(int)] > 0
+    many = np.array([2, 5, 6, 8, 9, 10, 11, 12, 13, 17, 18])
+    for cells in (np.array([3]), np.array([0, 7, 19]), np.arange(20), many):
+        crops = [np.zeros((0, 2))], [np.zeros(0)], [np.zeros(0, np.int64)]
+        for c in cells:                                       # one crop-path call per cell, concatenated
+            for acc, part in zip(crops, detect_fast_in_cells(fast, img, np.array([c]), mask, 4, 5)):
+                acc.append(part)
+        crops = [np.concatenate(a) for a in crops]
+        whole = _detect_fast_whole_image(fast, img, cells, mask, 4, 5)
+        chosen = detect_fast_in_cells(fast, img, cells, mask, 4, 5)
+        sel = np.concatenate([np.flatnonzero((ref_cell == c) & allowed) for c in cells])
+        for a, b, c, ref in zip(crops, whole, chosen, (ref_px[sel], ref_resp[sel], ref_cell[sel])):
+            assert np.array_equal(a, ref) and np.array_equal(b, ref) and np.array_equal(c, ref)
+        assert len(sel) > 0
