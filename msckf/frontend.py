@@ -117,6 +117,12 @@ class _Tracks:
                          ("ids", "px0", "xy0", "px1", "xy1", "life")))
 
 
+# First round of candidate matching: try ``ceil(want · slack / rate) + margin`` candidates per cell (see
+# StereoFrontend._match_candidates); only the number of KLT calls and points depends on these, not the result.
+_FIRST_ROUND_SLACK = 1.15
+_FIRST_ROUND_MARGIN = 2
+
+
 def _as_klt(px: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(px, dtype=np.float32).reshape(-1, 1, 2)
 
@@ -190,7 +196,14 @@ class _TrackerBase:
 
     def _klt(self, img0: np.ndarray, img1: np.ndarray, px: np.ndarray, guess: np.ndarray,
              levels: int) -> tuple[np.ndarray, np.ndarray]:
-        """Pyramidal KLT from ``px`` in ``img0`` to ``img1`` starting at ``guess``; returns (px (N,2), ok (N,))."""
+        """Pyramidal KLT from ``px`` in ``img0`` to ``img1`` starting at ``guess``; returns (px (N,2), ok (N,)).
+
+        Each call builds both pyramids and ``img0``'s derivatives again (≈ 0.3 ms at 672×376, 3 levels, one core;
+        the rest, ≈ 10 µs per point, is the tracking). S-MSCKF builds each pyramid once
+        (``buildOpticalFlowPyramid``) and passes it to every call, but the Python binding of OpenCV 5.1 takes a
+        single image for ``prevImg`` / ``nextImg`` (a pyramid list is rejected), so the front end keeps the number
+        of calls small instead (one per step, candidate matching in at most two rounds).
+        """
         if len(px) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=bool)
         out, status, _ = cv2.calcOpticalFlowPyrLK(
@@ -316,6 +329,7 @@ class StereoFrontend(_TrackerBase):
         self._R_10 = rig.T_right_left[:3, :3]
         self._t_10 = rig.T_right_left[:3, 3]
         self._stereo_unit = 4.0 / (rig.left.fx + rig.left.fy + rig.right.fx + rig.right.fy)
+        self._candidate_match_rate = 0.8   # fraction of new candidates stereo-matched in the previous frame
 
     def _stereo_match(self, left: np.ndarray, right: np.ndarray, tracks: _Tracks,
                       prev_px0: np.ndarray | None = None, prev_px1: np.ndarray | None = None
@@ -365,7 +379,12 @@ class StereoFrontend(_TrackerBase):
         S-MSCKF matches every candidate and then keeps the strongest matched ones per cell. KLT treats each
         point independently, so matching in rounds — each round tries, per cell, the next strongest untried
         candidates, a few more than the cell still has vacancies — selects exactly the same features while
-        matching far fewer points. Returns the (N,) mask of matched candidates (untried ones are False).
+        matching far fewer points. Each KLT call also pays a fixed cost (both image pyramids and the left
+        image's derivatives, ≈ 30 points' worth at 672×376), so the first round tries ``want / s`` candidates
+        per cell plus a margin, with ``s`` the fraction of candidates matched in the previous frame, and the
+        second round everything left in the cells still short: almost always one call, at most two. (The widths
+        change only how many points are tried, never which features are selected.) Returns the (N,) mask of
+        matched candidates (untried ones are False).
         """
         n_cells = self.config.grid_row * self.config.grid_col
         vacancy = np.maximum(self._min_quota - np.bincount(self._cells(tracks.px0), minlength=n_cells), 0)
@@ -377,20 +396,25 @@ class StereoFrontend(_TrackerBase):
         starts = np.searchsorted(cell, np.arange(n_cells))
         rank = np.arange(n) - starts[cell]          # rank by response within the cell
         next_rank = np.zeros(n_cells, dtype=np.int64)
-        for round_ in range(5):  # round 3 tries everything left, so round 4 finds nothing to do
+        rate = min(max(self._candidate_match_rate, 0.25), 1.0)
+        for round_ in range(3):  # round 1 tries everything left, so round 2 finds nothing to do
             want = vacancy - np.bincount(cell[ok], minlength=n_cells)
-            # A quarter more than the vacancies (some matches fail) saves most second rounds; after three rounds
-            # every remaining candidate of a cell still short is tried at once.
-            width = np.where(want > 0, want + (want + 3) // 4, 0) if round_ < 3 else np.where(want > 0, n, 0)
+            if round_ == 0:
+                width = np.where(want > 0, np.ceil(want * (_FIRST_ROUND_SLACK / rate)).astype(np.int64)
+                                 + _FIRST_ROUND_MARGIN, 0)
+            else:
+                width = np.where(want > 0, n, 0)
             batch = ~tried & (rank >= next_rank[cell]) & (rank < next_rank[cell] + width[cell])
             if not batch.any():
-                return ok
+                break
             next_rank = next_rank + width
             new.xy0[batch] = self.rig.left.undistort_points(new.px0[batch])
             px1, xy1, matched = self._stereo_match(left, right, new.select(batch))
             new.px1[batch], new.xy1[batch] = px1, xy1
             ok[batch] = matched
             tried |= batch
+        if tried.any():
+            self._candidate_match_rate = float(ok.sum()) / float(tried.sum())
         return ok
 
     def process(self, stamp_s: float, left_grey: np.ndarray, right_grey: np.ndarray) -> FeatureObservations:

@@ -83,20 +83,22 @@ def sample_depth(
     good = inside & ok.all(axis=1)
     reason[inside] = DepthReject.INVALID
 
-    # Depth-edge test on a window around the nearest pixel.
+    # Depth-edge test on a window around the nearest pixel (only where the depth itself was good).
     half = edge_window // 2
     off = np.arange(-half, half + 1)
-    cx = np.clip(np.rint(us).astype(np.int64), 0, w - 1)
-    cy = np.clip(np.rint(vs).astype(np.int64), 0, h - 1)
+    gi = np.flatnonzero(good)
+    cx = np.clip(np.rint(us[gi]).astype(np.int64), 0, w - 1)
+    cy = np.clip(np.rint(vs[gi]).astype(np.int64), 0, h - 1)
     wx = np.clip(cx[:, None, None] + off[None, None, :], 0, w - 1)
     wy = np.clip(cy[:, None, None] + off[None, :, None], 0, h - 1)
-    wd = depth_m[wy, wx].reshape(n, -1).astype(np.float64)
-    wok = depth_valid[wy, wx].reshape(n, -1) & np.isfinite(wd) & (wd > 0)
-    hi = np.max(np.where(wok, wd, -np.inf), axis=1)
-    lo = np.min(np.where(wok, wd, np.inf), axis=1)
+    wd = depth_m[wy, wx].reshape(len(gi), edge_window * edge_window).astype(np.float64)
+    wok = depth_valid[wy, wx].reshape(len(gi), edge_window * edge_window) & np.isfinite(wd) & (wd > 0)
+    hi = np.max(np.where(wok, wd, -np.inf), axis=1, initial=-np.inf)
+    lo = np.min(np.where(wok, wd, np.inf), axis=1, initial=np.inf)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel_range = np.where(wok.any(axis=1), (hi - lo) / value, 0.0)
-    edge = good & (rel_range > edge_threshold)
+        rel_range = np.where(wok.any(axis=1), (hi - lo) / value[gi], 0.0)
+    edge = np.zeros(n, dtype=bool)
+    edge[gi] = rel_range > edge_threshold
     out_of_range = good & ~edge & ((value < min_depth_m) | (value > max_depth_m))
     accepted = good & ~edge & ~out_of_range
     reason[good] = DepthReject.OK

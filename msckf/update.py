@@ -43,7 +43,7 @@ from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
            "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information",
-           "null_space_project", "qr_update", "inject_correction",
+           "null_space_project", "null_space_project_active", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
 
@@ -419,35 +419,62 @@ def ekf_update_information(P: np.ndarray, Lam: np.ndarray, eta: np.ndarray, sigm
 def null_space_project(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray]:
     """Every feature's residual projected on the left null space of its H_f, stacked (S-MSCKF's per-feature QR).
 
-    Batched over the k features: each feature's valid rows are moved to the front, and three Householder
-    reflections (the QR of its (m, 3) H_f) are applied to ``[H_x | r]``; rows 3 … m_valid − 1 are then the
-    projection (padding rows stay zero and are dropped). Features with ≤ 3 rows contribute nothing.
+    The full-width form of :func:`null_space_project_active` (the columns of clones no feature observed are
+    zero).
 
     Returns:
         (H_o (Σ(m_f − 3), 6·n_clones), r_o (Σ(m_f − 3),)).
     """
+    H_a, r, active = null_space_project_active(batch, n_clones)
+    H = np.zeros((H_a.shape[0], 6 * n_clones))
+    H[:, _block_columns(active)] = H_a
+    return H, r
+
+
+def _block_columns(clones: np.ndarray) -> np.ndarray:
+    """(6·len(clones),) column indices of the 6-column blocks of ``clones`` (clone order positions)."""
+    return (6 * np.asarray(clones, dtype=np.int64)[:, None] + np.arange(6)).reshape(-1)
+
+
+def null_space_project_active(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The null-space projection of every feature, on the clones the batch observes only.
+
+    Batched over the k features: each feature's valid rows are moved to the front, and three Householder
+    reflections (the QR of its (m, 3) H_f) are applied to ``[H_f | H_x | r]``; rows 3 … m_valid − 1 are then the
+    projection (padding rows stay zero and are dropped). Features with ≤ 3 rows contribute nothing. ``H_x`` is laid
+    out on the 6-column blocks of the ``a`` clones that any observation of the batch belongs to (a pruning update
+    touches 2 of the window's clones): the other clones' columns would stay zero. Each column is transformed on
+    its own, so the values are those of the full-width projection.
+
+    Returns:
+        (H_o (Σ(m_f − 3), 6·a), r_o (Σ(m_f − 3),), active (a,) clone order positions of the column blocks,
+        increasing).
+    """
     k, n, R, _ = batch.Hx.shape
-    ncol = 6 * n_clones
     m = n * R
     rows = batch.rows.reshape(k, m)
     n_valid = rows.sum(axis=1)
     use = n_valid > 3
     if not np.any(use):
-        return np.zeros((0, ncol)), np.zeros(0)
+        return np.zeros((0, 0)), np.zeros(0), np.zeros(0, dtype=np.int64)
     rows, n_valid = rows[use], n_valid[use]
     k = len(rows)
-    order = np.argsort(~rows, axis=1, kind="stable")                     # valid rows first, in their order
-    # [H_f | H_x | r] per feature, H_x on the full clone columns (each observation's 6 at its clone's block)
-    M = np.zeros((k, m, 3 + ncol + 1))
-    M[..., :3] = np.where(rows[..., None], batch.Hf[use].reshape(k, m, 3), 0.0)
-    Hx = np.where(rows[..., None], batch.Hx[use].reshape(k, m, 6), 0.0)
-    pos = np.repeat(batch.pos[use], R, axis=1)                           # (k, m) clone of each row
-    real = pos < n_clones
-    col = 3 + 6 * np.where(real, pos, 0)[..., None] + np.arange(6)
-    ff, rr = np.nonzero(real)
-    M[ff[:, None], rr[:, None], col[ff, rr]] = Hx[ff, rr]
-    M[..., -1] = np.where(rows, batch.r[use].reshape(k, m), 0.0)
-    M = M[np.arange(k)[:, None], order]
+    pos_f = batch.pos[use]
+    active = np.unique(pos_f[pos_f < n_clones])
+    lut = np.zeros(n_clones + 1, dtype=np.int64)
+    lut[active] = np.arange(len(active))
+    ncol = 6 * len(active)
+    # [H_f | H_x | r] per feature, its valid rows first (in their order), H_x on the active clone columns (each
+    # observation's 6 at its clone's block); rows past the longest feature's valid rows would stay zero
+    m_used = int(n_valid.max())
+    ff, rr = np.nonzero(rows)                                            # valid rows, feature-major
+    dest = (np.cumsum(rows, axis=1) - 1)[ff, rr]                          # their place among the valid rows
+    clone = lut[np.repeat(pos_f, R, axis=1)[ff, rr]]                     # padding rows are never valid
+    M = np.zeros((k, m_used, 3 + ncol + 1))
+    M[ff, dest, :3] = batch.Hf[use].reshape(k, m, 3)[ff, rr]
+    M[ff[:, None], dest[:, None], 3 + 6 * clone[:, None] + np.arange(6)] = batch.Hx[use].reshape(k, m, 6)[ff, rr]
+    M[ff, dest, -1] = batch.r[use].reshape(k, m)[ff, rr]
+    m = m_used
     for j in range(3):  # Householder QR of H_f, applied to the whole row block
         x = M[:, j:, j]
         alpha = -np.where(x[:, 0] >= 0, 1.0, -1.0) * np.linalg.norm(x, axis=1)
@@ -460,7 +487,7 @@ def null_space_project(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, 
         M[:, j:] -= 2.0 * v[:, :, None] * np.einsum("km,kmc->kc", v, M[:, j:])[:, None, :]
     keep = (np.arange(m)[None, :] >= 3) & (np.arange(m)[None, :] < n_valid[:, None])
     out = M[keep]
-    return out[:, 3:3 + ncol], out[:, -1]
+    return out[:, 3:3 + ncol], out[:, -1], active
 
 
 def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -> tuple[np.ndarray, np.ndarray]:
@@ -468,26 +495,33 @@ def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -
     the QR of its H_f), stacked QR compression, Kalman update in Joseph form (keeps P⁺ positive definite where
     the symmetric form lost it on depth runs).
 
+    Only the columns of the clones the batch observes (``c``, 6 per clone) are non-zero in H, so the stacked QR
+    and the update work on those: with ``h = H_c`` (r × c) after compression, ``S = h P_cc hᵀ + σ²I``,
+    ``K = P_:c hᵀ S⁻¹``, and the Joseph form ``(I − KH) P (I − KH)ᵀ + σ² K Kᵀ`` expands, with
+    ``A = P − K (P_:c hᵀ)ᵀ``, to ``A − (A_:c hᵀ) Kᵀ + σ² K Kᵀ``: O(n² r) instead of O(n³). The same update as
+    the full-width matrices, equal to rounding.
+
     Args:
         P: (21 + 6C, 21 + 6C) covariance. batch: the gated features. sigma: measurement σ (normalised units).
         n_clones: C.
     Returns:
         (δx (21 + 6C,), P⁺).
     """
-    ncol = 6 * n_clones
-    H, r = null_space_project(batch, n_clones)
+    H, r, active = null_space_project_active(batch, n_clones)
     if H.shape[0] == 0:
         return np.zeros(P.shape[0]), P
-    if H.shape[0] > H.shape[1]:
+    ncol = H.shape[1]
+    if H.shape[0] > ncol:
         Raug = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")
         H, r = Raug[:ncol, :ncol], Raug[:ncol, ncol]
-    Hfull = np.zeros((H.shape[0], P.shape[0]))
-    Hfull[:, IMU_DIM:] = H
-    S = Hfull @ P @ Hfull.T + sigma * sigma * np.eye(H.shape[0])
-    K = np.linalg.solve(S, Hfull @ P).T
+    idx = IMU_DIM + _block_columns(active)                                # state columns of H
+    P_c = P[:, idx]                                                       # (n, c)
+    PHt = P_c @ H.T                                                       # P Hᵀ, (n, r)
+    S = H @ PHt[idx] + sigma * sigma * np.eye(H.shape[0])
+    K = np.linalg.solve(S, PHt.T).T                                       # (n, r)
     dx = K @ r
-    IKH = np.eye(P.shape[0]) - K @ Hfull
-    P_new = IKH @ P @ IKH.T + sigma * sigma * K @ K.T
+    A = P - K @ PHt.T                                                     # (I − K H) P
+    P_new = A - (A[:, idx] @ H.T) @ K.T + sigma * sigma * (K @ K.T)
     return dx, 0.5 * (P_new + P_new.T)
 
 

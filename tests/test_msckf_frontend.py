@@ -505,7 +505,20 @@ def test_matching_candidates_in_rounds_selects_what_matching_all_would(wall_seq)
     pick_all = np.flatnonzero(ok_all)[top_per_group(cell[ok_all], resp[ok_all], quota)]
     pick_rounds = np.flatnonzero(ok_rounds)[top_per_group(cell[ok_rounds], resp[ok_rounds], quota)]
     assert np.array_equal(pick_all, pick_rounds)
-    assert ok_rounds.sum() < ok_all.sum()               # and fewer points were matched
+    # The first round's width follows the last frame's match rate; whatever the rate, the selection is the same.
+    for rate in (0.25, 0.5, 1.0):
+        fe._candidate_match_rate = rate
+        ok_r = fe._match_candidates(left, right, _Tracks.empty(), fe._new_tracks(px, undistort=False), cell)
+        pick_r = np.flatnonzero(ok_r)[top_per_group(cell[ok_r], resp[ok_r], quota)]
+        assert np.array_equal(pick_all, pick_r)
+    # With a good right image (and the rate it gives), at most two KLT calls and fewer points than matching every
+    # candidate.
+    calls = []
+    klt = fe._klt
+    fe._klt = lambda *a: (calls.append(len(a[2])), klt(*a))[1]
+    fe._candidate_match_rate = 1.0
+    fe._match_candidates(left, wall_seq.right[0], _Tracks.empty(), fe._new_tracks(px, undistort=False), cell)
+    assert 1 <= len(calls) <= 2 and sum(calls) < len(px)
 
 
 def test_depth_frontend_reports_each_features_sigma_and_whether_its_depth_was_measured(wall_seq):
@@ -533,3 +546,94 @@ def test_depth_frontend_reports_each_features_sigma_and_whether_its_depth_was_me
     fd2 = DepthFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=0)
     fd2.process(wall_seq.stamps[0], wall_seq.left[0], np.nan_to_num(d), valid)
     assert fd2.last_debug.depth_measured is None and fd2.last_debug.depth_sigma_m is None
+
+
+def _sample_depth_loop(depth, valid, px, sampling, window, threshold, lo_m, hi_m):
+    """Reference: sample_depth's rules, one feature at a time."""
+    h, w = depth.shape
+    out, why = np.full(len(px), np.nan), np.full(len(px), DepthReject.OUTSIDE, np.uint8)
+    for i, (u, v) in enumerate(px):
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
+        if sampling == "bilinear":
+            x0, y0 = int(np.floor(u)), int(np.floor(v))
+            if not (x0 >= 0 and y0 >= 0 and x0 + 1 < w and y0 + 1 < h):
+                continue
+            ax, ay = u - x0, v - y0
+            taps = [(y0, x0, (1 - ax) * (1 - ay)), (y0, x0 + 1, ax * (1 - ay)), (y0 + 1, x0, (1 - ax) * ay),
+                    (y0 + 1, x0 + 1, ax * ay)]
+        else:
+            x, y = int(np.rint(u)), int(np.rint(v))
+            if not (0 <= x < w and 0 <= y < h):
+                continue
+            taps = [(y, x, 1.0)]
+        why[i] = DepthReject.INVALID
+        if not all(valid[y, x] and np.isfinite(depth[y, x]) and depth[y, x] > 0 for y, x, _ in taps):
+            continue
+        z = sum(float(depth[y, x]) * a for y, x, a in taps)
+        cx, cy, half = int(np.clip(np.rint(u), 0, w - 1)), int(np.clip(np.rint(v), 0, h - 1)), window // 2
+        win = [float(depth[y, x]) for y in np.clip(np.arange(cy - half, cy + half + 1), 0, h - 1)
+               for x in np.clip(np.arange(cx - half, cx + half + 1), 0, w - 1)
+               if valid[y, x] and np.isfinite(depth[y, x]) and depth[y, x] > 0]
+        if win and (max(win) - min(win)) / z > threshold:
+            why[i] = DepthReject.EDGE
+        elif not lo_m <= z <= hi_m:
+            why[i] = DepthReject.RANGE
+        else:
+            why[i], out[i] = DepthReject.OK, z
+    return out, why
+
+
+@pytest.mark.parametrize("sampling", ["bilinear", "nearest"])
+def test_sample_depth_matches_a_per_feature_reference(sampling):
+    """The vectorised depth read (edge window gathered only for features whose depth is good) gives the same
+    depth (to rounding) and the same reject reason as the rules applied feature by feature."""
+    rng = np.random.default_rng(3)
+    h, w = 60, 80
+    depth = (2.0 + 0.02 * np.arange(w)[None, :] + 0.01 * np.arange(h)[:, None]).astype(np.float32)
+    depth[20:30, 30:50] = 9.0                       # a step: depth edges around it
+    depth[:, 70:] = 25.0                            # beyond max_depth_m
+    valid = rng.random((h, w)) > 0.15               # holes
+    depth[5, 5] = np.nan
+    px = np.column_stack([rng.uniform(-3, w + 2, 400), rng.uniform(-3, h + 2, 400)])
+    px[:3] = np.nan
+    args = (sampling, 5, 0.15, 0.3, 20.0)
+    z, why = sample_depth(depth, valid, px, *args)
+    z_ref, why_ref = _sample_depth_loop(depth, valid, px, *args)
+    assert np.array_equal(why, why_ref)
+    assert np.array_equal(np.isnan(z), np.isnan(z_ref)) and np.allclose(z, z_ref, equal_nan=True, rtol=1e-12)
+    assert {DepthReject.OK, DepthReject.OUTSIDE, DepthReject.INVALID, DepthReject.EDGE, DepthReject.RANGE} \
+        <= set(why.tolist())
+
+
+def test_fast_detection_per_cell_crops_and_whole_image_agree(wall_seq):
+    """detect_fast_in_cells crops the requested cells (few cells) or detects once over the whole image (more
+    than half the cells): both give the same corners, responses, cells and order as a plain whole-image FAST
+    kept where the mask allows and the cell was requested, grouped cell by cell in the requested order."""
+    import cv2
+
+    from msckf.frontend_grid import _detect_fast_whole_image, detect_fast_in_cells, exclusion_mask
+
+    img = wall_seq.left[0]
+    h, w = img.shape
+    fast = cv2.FastFeatureDetector_create(threshold=10, nonmaxSuppression=True)
+    rng = np.random.default_rng(5)
+    mask = exclusion_mask(rng.uniform([0, 0], [w, h], (300, 2)), w, h, 2)
+    kps = fast.detect(img)
+    ref_px = cv2.KeyPoint_convert(kps).astype(np.float64)
+    ref_resp = np.array([k.response for k in kps])
+    ref_cell = cell_index(ref_px, w, h, 4, 5)
+    allowed = mask[ref_px[:, 1].astype(int), ref_px[:, 0].astype(int)] > 0
+    many = np.array([2, 5, 6, 8, 9, 10, 11, 12, 13, 17, 18])
+    for cells in (np.array([3]), np.array([0, 7, 19]), np.arange(20), many):
+        crops = [np.zeros((0, 2))], [np.zeros(0)], [np.zeros(0, np.int64)]
+        for c in cells:                                       # one crop-path call per cell, concatenated
+            for acc, part in zip(crops, detect_fast_in_cells(fast, img, np.array([c]), mask, 4, 5)):
+                acc.append(part)
+        crops = [np.concatenate(a) for a in crops]
+        whole = _detect_fast_whole_image(fast, img, cells, mask, 4, 5)
+        chosen = detect_fast_in_cells(fast, img, cells, mask, 4, 5)
+        sel = np.concatenate([np.flatnonzero((ref_cell == c) & allowed) for c in cells])
+        for a, b, c, ref in zip(crops, whole, chosen, (ref_px[sel], ref_resp[sel], ref_cell[sel])):
+            assert np.array_equal(a, ref) and np.array_equal(b, ref) and np.array_equal(c, ref)
+        assert len(sel) > 0

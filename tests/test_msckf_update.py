@@ -277,3 +277,53 @@ def test_track_drift_whitening_of_stereo_rows_shares_the_drift_between_cameras()
     separate = FeatureBatch(b.pos, wl.Hx + wr.Hx, wl.Hf + wr.Hf, wl.r + wr.r, b.rows)
     ratio = float((gating_chi2(P, separate, sigma) / dof).mean())
     assert ratio > 1.5, ratio  # independent walks: the shared common-mode error counts as information
+
+
+def _qr_update_full_width(P, batch, sigma, n_clones):
+    """Reference: the full-width S-MSCKF update (every clone column, dense Joseph form), as before 2026-12-02."""
+    from msckf.update import null_space_project
+
+    ncol = 6 * n_clones
+    H, r = null_space_project(batch, n_clones)
+    if H.shape[0] > H.shape[1]:
+        Raug = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")
+        H, r = Raug[:ncol, :ncol], Raug[:ncol, ncol]
+    Hfull = np.zeros((H.shape[0], P.shape[0]))
+    Hfull[:, 21:] = H
+    S = Hfull @ P @ Hfull.T + sigma * sigma * np.eye(H.shape[0])
+    K = np.linalg.solve(S, Hfull @ P).T
+    IKH = np.eye(P.shape[0]) - K @ Hfull
+    P_new = IKH @ P @ IKH.T + sigma * sigma * K @ K.T
+    return K @ r, 0.5 * (P_new + P_new.T)
+
+
+@pytest.mark.parametrize("which", ["all", "two_clones", "one_feature"])
+def test_active_column_qr_update_equals_the_full_width_update(running_filter, which):
+    """The update on the observed clones' columns (low-rank Joseph form) equals the dense full-width one to
+    rounding, for a batch over every clone, a pruning-like batch over two clones and a single feature."""
+    from msckf.update import null_space_project, null_space_project_active
+
+    flt, rows, order = running_filter
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise)
+    mask = flt.features.has[rows][:, order].copy()
+    if which == "two_clones":
+        mask[:, 2:] = False                            # the two oldest clones, as a pruning update
+        rows, mask = rows[mask.sum(axis=1) == 2], mask[mask.sum(axis=1) == 2]
+    elif which == "one_feature":
+        rows, mask = rows[:1], mask[:1]
+    b = flt._batch(rows, mask, spec)
+    sigma = flt.config.feature_noise
+    n_cl = len(order)
+    H_a, r_a, active = null_space_project_active(b, n_cl)
+    H_full, r_full = null_space_project(b, n_cl)
+    cols = (6 * active[:, None] + np.arange(6)).reshape(-1)
+    assert np.array_equal(H_full[:, cols], H_a) and np.array_equal(r_full, r_a)
+    assert not np.any(np.delete(H_full, cols, axis=1))
+    if which == "two_clones":
+        assert len(active) == 2
+    dx_ref, P_ref = _qr_update_full_width(flt.P, b, sigma, n_cl)
+    dx, P_new = qr_update(flt.P, b, sigma, n_cl)
+    assert np.abs(dx - dx_ref).max() <= 1e-12 * np.abs(dx_ref).max()
+    assert np.abs(P_new - P_ref).max() <= 1e-12 * np.abs(P_ref).max()
+    lo, lo_ref = np.linalg.eigvalsh(P_new).min(), np.linalg.eigvalsh(P_ref).min()
+    assert lo >= lo_ref - 1e-14 * np.abs(P_ref).max()
