@@ -304,7 +304,7 @@ def test_active_column_qr_update_equals_the_full_width_update(running_filter, wh
     from msckf.update import null_space_project, null_space_project_active
 
     flt, rows, order = running_filter
-    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.feature_noise)
+    spec = MeasurementSpec(flt.R_c1_c0, flt.t_c1_c0, flt.g_w, flt.config.update.feature_noise)
     mask = flt.features.has[rows][:, order].copy()
     if which == "two_clones":
         mask[:, 2:] = False                            # the two oldest clones, as a pruning update
@@ -312,7 +312,7 @@ def test_active_column_qr_update_equals_the_full_width_update(running_filter, wh
     elif which == "one_feature":
         rows, mask = rows[:1], mask[:1]
     b = flt._batch(rows, mask, spec)
-    sigma = flt.config.feature_noise
+    sigma = flt.config.update.feature_noise
     n_cl = len(order)
     H_a, r_a, active = null_space_project_active(b, n_cl)
     H_full, r_full = null_space_project(b, n_cl)
