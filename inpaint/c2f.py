@@ -52,8 +52,8 @@ from inpaint.block_search import LevelGrid, SearchResult
 from inpaint.c2f_kernels import block_search, nnf_search, paste_blocks, sample_blocks
 from inpaint.errors import InpaintInputError
 from inpaint.fusion import FUSION_MODES, softmax_weights
-from inpaint.fusion_kernels import NetArrays, net_arrays, run_net_compiled
-from inpaint.fusion_net import WEIGHTS_DIR, load_net, normalise, run_net
+from inpaint.fusion_kernels import NetArrays, fuse_clamped, net_arrays, run_net_compiled
+from inpaint.fusion_net import SIGMA_MIN, WEIGHTS_DIR, load_net, normalise, run_net
 from inpaint.gradient import GRADIENT_KINDS, anisotropic_channels_fast, gradient_channels
 from inpaint.method import PaperOptions, _Filler, fill_in_domain
 from inpaint.pyramid import masked_pyrdown
@@ -416,6 +416,9 @@ def _fuse(o: C2FOptions, cands: np.ndarray, est_blk: np.ndarray, known_blk: np.n
     if o.fusion == "mean":
         w = softmax_weights(q, valid, o.alpha)
         return (w[:, :, None, None] * cands).sum(axis=1).astype(np.float32)
+    if COMPILED_NET and o.clamp_fusion:
+        return fuse_clamped(_net_arrays(o.weights or str(C2F_WEIGHTS_FILE)), cands, est_blk, known_blk, q, valid,
+                            o.alpha, FUSE_TOL, SIGMA_MIN)[0]
     vm = valid[:, :, None, None]
     lo = np.where(vm, cands, np.inf).min(axis=1)
     hi = np.where(vm, cands, -np.inf).max(axis=1)

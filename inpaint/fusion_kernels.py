@@ -95,8 +95,118 @@ def run_net_compiled(arrs: NetArrays, cands: np.ndarray, target: np.ndarray, hol
     hole = np.ascontiguousarray(hole, np.float32)
     valid = np.ascontiguousarray(valid, np.bool_)
     _forward_blocks(cands, target, hole, wts, valid, arrs.w0, arrs.b0, arrs.wd, arrs.bd, arrs.w1, arrs.b1,
-                    arrs.v0, arrs.c0, arrs.v1, arrs.c1, arrs.v2, arrs.c2, np.float32(arrs.gamma), out)
+                    arrs.v0, arrs.c0, arrs.v1, arrs.c1, arrs.v2, arrs.c2, np.float32(arrs.gamma), out,
+                    np.arange(b_n))
     return out
+
+
+def fuse_clamped(arrs: NetArrays, cands: np.ndarray, est: np.ndarray, known: np.ndarray, q: np.ndarray,
+                 valid: np.ndarray, alpha: float, tol: float, sigma_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """The clamped network fusion of ``paper`` (``inpaint.c2f._fuse``) in compiled passes; working units.
+
+    ``cands`` K×S×b×b candidate blocks (shifted to the target), ``est`` K×b×b the current estimate of the target
+    block, ``known`` K×b×b measured pixels, ``q`` / ``valid`` K×S. Per block: lo / hi = the per-pixel range of the
+    valid candidates; where hi − lo ≤ ``tol``·max|hi| at every hole pixel the block's fusion is determined to that
+    bound and it takes the softmax(``alpha``·q) mean, else the network runs on the block normalised as
+    ``fusion_net.normalise`` does with every pixel of ``est`` as target (σ ≥ ``sigma_min``); the fused value is
+    clamped to [lo, hi]. Returns (fused K×b×b float32, ran K bool: the network ran on the block)."""
+    k_n, s_n, b, _ = cands.shape
+    cands = np.ascontiguousarray(cands, np.float32)
+    est = np.ascontiguousarray(est, np.float32)
+    hole = np.ascontiguousarray(~known, np.float32)
+    valid = np.ascontiguousarray(valid, np.bool_)
+    wq = softmax_q(q, valid, alpha)
+    out = np.empty((k_n, b, b), np.float32)
+    run = np.zeros(k_n, np.bool_)
+    cn = np.empty_like(cands)
+    tn = np.empty_like(est)
+    mu = np.zeros(k_n, np.float32)
+    sg = np.ones(k_n, np.float32)
+    lo = np.empty_like(est)
+    hi = np.empty_like(est)
+    _fuse_prep(cands, est, hole, valid, wq, np.float32(tol), np.float32(sigma_min), out, run, lo, hi, cn, tn, mu,
+               sg)
+    sel = np.flatnonzero(run)
+    if len(sel):
+        wn = softmax_q(q, valid, arrs.alpha)
+        res = np.empty_like(est)
+        _forward_blocks(cn, tn, hole, wn, valid, arrs.w0, arrs.b0, arrs.wd, arrs.bd, arrs.w1, arrs.b1, arrs.v0,
+                        arrs.c0, arrs.v1, arrs.c1, arrs.v2, arrs.c2, np.float32(arrs.gamma), res, sel)
+        _fuse_finish(res, sel, mu, sg, lo, hi, out)
+    return out, run
+
+
+@numba.njit(**NJIT)
+def _fuse_prep(cands: np.ndarray, est: np.ndarray, hole: np.ndarray, valid: np.ndarray, wq: np.ndarray,
+               tol: np.float32, sigma_min: np.float32, out: np.ndarray, run: np.ndarray, lo: np.ndarray,
+               hi: np.ndarray, cn: np.ndarray, tn: np.ndarray, mu: np.ndarray, sg: np.ndarray) -> None:
+    """Range, skip decision, softmax mean of skipped blocks and normalisation of the others (``fuse_clamped``)."""
+    k_n, s_n, b, _ = cands.shape
+    for k in range(k_n):
+        spread = np.float32(0.0)
+        scale = np.float32(0.0)
+        for y in range(b):
+            for x in range(b):
+                lv = np.float32(np.inf)
+                hv = np.float32(-np.inf)
+                for s in range(s_n):
+                    if valid[k, s]:
+                        v = cands[k, s, y, x]
+                        lv = min(lv, v)
+                        hv = max(hv, v)
+                lo[k, y, x] = lv
+                hi[k, y, x] = hv
+                if hole[k, y, x] > np.float32(0.0):
+                    spread = max(spread, hv - lv)
+                    scale = max(scale, abs(hv))
+        run[k] = spread > tol * scale
+        if not run[k]:
+            for y in range(b):
+                for x in range(b):
+                    m = np.float32(0.0)
+                    for s in range(s_n):
+                        if valid[k, s]:
+                            m += wq[k, s] * cands[k, s, y, x]
+                    out[k, y, x] = min(max(m, lo[k, y, x]), hi[k, y, x])
+            continue
+        # fusion_net.normalise with every pixel of the estimate as target
+        st = 0.0
+        for y in range(b):
+            for x in range(b):
+                st += est[k, y, x]
+        m = st / (b * b)
+        dev = 0.0
+        cnt = b * b
+        for y in range(b):
+            for x in range(b):
+                dev += (est[k, y, x] - m) ** 2
+        for s in range(s_n):
+            if valid[k, s]:
+                cnt += b * b
+                for y in range(b):
+                    for x in range(b):
+                        dev += (cands[k, s, y, x] - m) ** 2
+        sig = max(np.sqrt(dev / cnt), sigma_min)
+        mu[k] = m
+        sg[k] = sig
+        inv = 1.0 / sig
+        for y in range(b):
+            for x in range(b):
+                tn[k, y, x] = (est[k, y, x] - m) * inv
+                for s in range(s_n):
+                    cn[k, s, y, x] = (cands[k, s, y, x] - m) * inv
+
+
+@numba.njit(**NJIT)
+def _fuse_finish(res: np.ndarray, sel: np.ndarray, mu: np.ndarray, sg: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 out: np.ndarray) -> None:
+    """out[k] = clamp(res[k]·σ_k + μ_k, lo[k], hi[k]) for k in ``sel``."""
+    b = res.shape[1]
+    for kk in range(sel.shape[0]):
+        k = sel[kk]
+        for y in range(b):
+            for x in range(b):
+                out[k, y, x] = min(max(res[k, y, x] * sg[k] + mu[k], lo[k, y, x]), hi[k, y, x])
 
 
 @numba.njit(**NJIT)
@@ -212,8 +322,8 @@ def _log_inplace(buf: np.ndarray, n: int, ib: np.ndarray) -> None:
 def _forward_blocks(cands: np.ndarray, target: np.ndarray, hole: np.ndarray, wts: np.ndarray, valid: np.ndarray,
                     w0: np.ndarray, b0: np.ndarray, wd: np.ndarray, bd: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                     v0: np.ndarray, c0: np.ndarray, v1: np.ndarray, c1: np.ndarray, v2: np.ndarray, c2: np.ndarray,
-                    gamma: np.float32, out: np.ndarray) -> None:
-    """Per block: shared part of the first encoder convolution; per valid scale the encoder up to its sigmoid and
+                    gamma: np.float32, out: np.ndarray, sel: np.ndarray) -> None:
+    """For each block k in ``sel``: shared part of the first encoder convolution; per valid scale the encoder up to its sigmoid and
     the PLIP term w·log(1 − F/γ) with F = γ(1 − 1e-4)·sigmoid(pre), i.e. log((e + 1e-4)/(1 + e)), e = exp(−pre)
     (no cancellation); fused = γ·(1 − exp(Σ terms)); then the decoder on [fused, target, hole, base] and
     out = base + residual, base = Σ_s w_s cands[s]."""
@@ -244,7 +354,8 @@ def _forward_blocks(cands: np.ndarray, target: np.ndarray, hole: np.ndarray, wts
     nf = f_n * pp
     eps = np.float32(1e-4)
     one = np.float32(1.0)
-    for k in range(b_n):
+    for kk in range(sel.shape[0]):
+        k = sel[kk]
         for y in range(b):
             for x in range(b):
                 i = (y + 1) * bp + x + 1
