@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from inpaint.block_search import LevelGrid, SearchResult
-from inpaint.c2f_kernels import block_search, nnf_search, paste_blocks, sample_blocks
+from inpaint.c2f_kernels import anchor_blocks, block_search, nnf_search, paste_blocks, sample_blocks
 from inpaint.errors import InpaintInputError
 from inpaint.fusion import FUSION_MODES, softmax_weights
 from inpaint.fusion_kernels import NetArrays, fuse_clamped, net_arrays, run_net_compiled
@@ -340,7 +340,7 @@ class _CoarseToFine:
         # candidates: this level's block, then each coarser level's (upsampled)
         scales = [lv] if o.single_scale else list(range(lv, min(self.n_lv, lv + o.scales)))
         s_n = len(scales)
-        cands = np.zeros((s_n, k_n, b, b), np.float32)  # scale-major while sampling (contiguous), K×S×b×b below
+        cands = np.zeros((k_n, s_n, b, b), np.float32)
         q = np.full((k_n, s_n), -Q_CLIP, np.float32)
         found = np.zeros((k_n, s_n), bool)
         for si, lc in enumerate(scales):
@@ -355,24 +355,17 @@ class _CoarseToFine:
             off = np.full((k_n, 2), np.nan)
             jj = j[ok]
             off[ok] = f.best[jj] - f.centres[jj]
-            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[si])
+            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[:, si])
             found[:, si] = ok
             q[ok, si] = -np.minimum(f.e[jj], Q_CLIP)
-        cands = np.ascontiguousarray(cands.transpose(1, 0, 2, 3))
         valid = found & (q > -o.match_threshold)
         none = ~valid.any(axis=1)
         valid[none] = found[none]  # 1_match fall-back: every level that found a block
         off = np.arange(-h, h + 1)
-        by = centres[:, 0, None, None] + off[None, :, None]
-        bx = centres[:, 1, None, None] + off[None, None, :]
-        by, bx = np.broadcast_arrays(by, bx)
-        est_blk = est[by, bx]
-        known_blk = known[by, bx]
-        w_blk = np.where(known_blk, np.float32(1.0), np.float32(o.w_anchor))
-        ws = w_blk.sum(axis=(1, 2))
-        mu_t = (est_blk * w_blk).sum(axis=(1, 2)) / ws
-        mu_c = (cands * w_blk[:, None]).sum(axis=(2, 3)) / ws[:, None]
-        cands += (mu_t[:, None] - mu_c)[:, :, None, None]
+        # the target block (estimate, measured mask) and every candidate shifted to its anchored mean
+        est_blk = np.empty((k_n, b, b), np.float32)
+        known_blk = np.empty((k_n, b, b), bool)
+        anchor_blocks(est, known, centres, h, np.float32(o.w_anchor), cands, est_blk, known_blk)
         still = ~valid.any(axis=1)
         if still.any():  # no block anywhere: keep the current estimate
             cands[still, 0] = est_blk[still]

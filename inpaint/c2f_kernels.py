@@ -170,6 +170,41 @@ def sample_blocks(img: np.ndarray, centres: np.ndarray, h: int, inv_scale: float
 
 
 @numba.njit(**NJIT)
+def anchor_blocks(est: np.ndarray, known: np.ndarray, centres: np.ndarray, h: int, w_anchor: np.float32,
+                  cands: np.ndarray, est_blk: np.ndarray, known_blk: np.ndarray) -> None:
+    """Target blocks and candidate shift of a refinement pass: ``est_blk[k]`` / ``known_blk[k]`` (b×b, b = 2h+1)
+    = ``est`` / ``known`` (H×W) around centre k; every candidate ``cands[k, s]`` (K×S×b×b, in place) is shifted by
+    μ_t − μ_c, the difference of the target's and the candidate's weighted block means, weights 1 on measured
+    pixels and ``w_anchor`` on estimated ones (float64 sums)."""
+    k_n, s_n, b, _ = cands.shape
+    one = np.float32(1.0)
+    for k in range(k_n):
+        cy, cx = centres[k, 0] - h, centres[k, 1] - h
+        ws = 0.0
+        st = 0.0
+        for y in range(b):
+            for x in range(b):
+                kn = known[cy + y, cx + x]
+                v = est[cy + y, cx + x]
+                est_blk[k, y, x] = v
+                known_blk[k, y, x] = kn
+                w = one if kn else w_anchor
+                ws += w
+                st += w * v
+        mu_t = st / ws
+        for s in range(s_n):
+            sc = 0.0
+            for y in range(b):
+                for x in range(b):
+                    w = one if known_blk[k, y, x] else w_anchor
+                    sc += w * cands[k, s, y, x]
+            d = np.float32(mu_t - sc / ws)
+            for y in range(b):
+                for x in range(b):
+                    cands[k, s, y, x] += d
+
+
+@numba.njit(**NJIT)
 def paste_blocks(blocks: np.ndarray, centres: np.ndarray, h: int, window: np.ndarray, acc: np.ndarray,
                  wacc: np.ndarray) -> None:
     """acc += window · block, wacc += window at every block's pixels (overlap averaging: acc / wacc)."""
