@@ -350,6 +350,8 @@ def _forward_blocks(cands: np.ndarray, target: np.ndarray, hole: np.ndarray, wts
     w0c = np.ascontiguousarray(w0[:, 0:1])
     w1k = np.ascontiguousarray(w1.reshape(w1.shape[0], w1.shape[1], 1, 1))
     pre_f = pre.reshape(-1)
+    cat_f = cat.reshape(-1)
+    shared_f = shared.reshape(-1)
     log_f = logsum.reshape(-1)
     nf = f_n * pp
     eps = np.float32(1e-4)
@@ -374,10 +376,9 @@ def _forward_blocks(cands: np.ndarray, target: np.ndarray, hole: np.ndarray, wts
                 for x in range(b):
                     inp[0, (y + 1) * bp + x + 1] = cands[k, s, y, x]
             _conv(inp[0:1], 1, w0c, zero, f_n, False, cat, 0, bp, b)
-            for c in range(f_n):
-                for i in range(pp):
-                    v = cat[c, i] + shared[c, i]
-                    cat[c, i] = v if v > np.float32(0.0) else np.float32(0.0)
+            for i in range(numba.uint64(nf)):  # ReLU(own + shared): channels 0..F−1 of ``cat``
+                v = cat_f[i] + shared_f[i]
+                cat_f[i] = v if v > np.float32(0.0) else np.float32(0.0)
             for i in range(n_dense):
                 _conv(cat, f_n + i * g_n, wd[i], bd[i], g_n, True, cat, f_n + i * g_n, bp, b)
             _conv(cat, cat_n, w1k, b1, f_n, False, pre, 0, bp, b)
