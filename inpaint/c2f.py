@@ -27,9 +27,11 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
      measured pixels (estimated ones weigh ``w_anchor``, so a block without measured pixels keeps the estimate's
      mean); quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
      the levels that found any block (fall-back), else the current estimate;
-   - fusion of the candidates (``fusion``): the PLIP-softmax network (one batched call per pass, in its inference
-     form ``FusionNet.forward_valid``; its own weights, trained on the candidates of this formulation,
-     ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the best block. With the network, a block whose
+   - fusion of the candidates (``fusion``): the PLIP-softmax network (one compiled call per pass,
+     ``fusion_kernels.fuse_clamped``: the inference form ``FusionNet.forward_valid`` of the same weights as one
+     numba loop over blocks, equal to it to 1e-5; ``COMPILED_NET = False`` runs torch instead; its own weights,
+     trained on the candidates of this formulation, ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the
+     best block. With the network, a block whose
      valid candidates agree to ``FUSE_TOL`` at every hole pixel (or that has a single one) takes the softmax mean:
      the network's output is clamped to the candidates' range, so that changes no value by more than the tolerance;
    - paste: overlap averaging with a tent window into hole pixels only, clipped to the range of the measured
@@ -76,8 +78,8 @@ class C2FOptions:
       fusion uses only the block of its own level (and the coarsest fill searches one level).
     - block [11]: level-0 block (odd); coarser levels use ``max(7, block/2^L + 3)`` rounded to odd.
     - overlap [2]: overlap of neighbouring blocks (pixels); passes [(1, 1, 1)]: refinement passes at levels 0, 1, 2…
-      (last value repeats); iters [2]: PatchMatch scans per pass; search [(4, 8, 16, 16)]: random-search radius
-      per level (level pixels, last repeats).
+      (last value repeats); iters [1]: PatchMatch scans per pass (2: simulator hole RMSE 1.3 % lower, ≈ 10 %
+      slower, measured); search [(4, 8, 16, 16)]: random-search radius per level (level pixels, last repeats).
     - gradient ["anisotropic"|"sobel"]; fusion ["net"|"mean"|"best"]; w_depth [1.0]; match_threshold [1.0];
       alpha [4.0]; w_estimate [0.5]: similarity weight of estimated (not measured) target pixels; w_anchor [0.01]:
       their weight in the mean that candidates are shifted to (measured pixels weigh 1).
@@ -97,7 +99,7 @@ class C2FOptions:
     block: int = 11
     overlap: int = 2
     passes: tuple[int, ...] = (1, 1, 1)
-    iters: int = 2
+    iters: int = 1
     search: tuple[int, ...] = (4, 8, 16, 16)
     gradient: str = "anisotropic"
     fusion: str = "net"
