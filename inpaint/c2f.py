@@ -27,9 +27,11 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
      measured pixels (estimated ones weigh ``w_anchor``, so a block without measured pixels keeps the estimate's
      mean); quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
      the levels that found any block (fall-back), else the current estimate;
-   - fusion of the candidates (``fusion``): the PLIP-softmax network (one batched call per pass, in its inference
-     form ``FusionNet.forward_valid``; its own weights, trained on the candidates of this formulation,
-     ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the best block. With the network, a block whose
+   - fusion of the candidates (``fusion``): the PLIP-softmax network (one compiled call per pass,
+     ``fusion_kernels.fuse_clamped``: the inference form ``FusionNet.forward_valid`` of the same weights as one
+     numba loop over blocks, equal to it to 1e-5; ``COMPILED_NET = False`` runs torch instead; its own weights,
+     trained on the candidates of this formulation, ``weights/fusion_net_c2f.pt``), the softmax(α·q) mean, or the
+     best block. With the network, a block whose
      valid candidates agree to ``FUSE_TOL`` at every hole pixel (or that has a single one) takes the softmax mean:
      the network's output is clamped to the candidates' range, so that changes no value by more than the tolerance;
    - paste: overlap averaging with a tent window into hole pixels only, clipped to the range of the measured
@@ -43,15 +45,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from inpaint.block_search import LevelGrid, SearchResult
-from inpaint.c2f_kernels import block_search, nnf_search, paste_blocks, sample_blocks
+from inpaint.c2f_kernels import anchor_blocks, block_search, nnf_search, paste_blocks, sample_blocks
 from inpaint.errors import InpaintInputError
 from inpaint.fusion import FUSION_MODES, softmax_weights
-from inpaint.fusion_net import WEIGHTS_DIR, load_net, normalise, run_net
+from inpaint.fusion_kernels import NetArrays, fuse_clamped, net_arrays, run_net_compiled
+from inpaint.fusion_net import SIGMA_MIN, WEIGHTS_DIR, load_net, normalise, run_net
 from inpaint.gradient import GRADIENT_KINDS, anisotropic_channels_fast, gradient_channels
 from inpaint.method import PaperOptions, _Filler, fill_in_domain
 from inpaint.pyramid import masked_pyrdown
@@ -62,6 +66,7 @@ Q_CLIP = 10.0
 MIN_COARSE_SIDE = 24  # the coarsest level keeps at least this many pixels on its short side
 NET_CHUNK = 128  # blocks per network forward call (measured fastest of 48/128/512)
 NATIVE_CONV = False  # oneDNN convolutions: 3–6 % less CPU per frame than torch's native ones (measured)
+COMPILED_NET = True  # the network as one compiled loop (``inpaint.fusion_kernels``) instead of torch
 FUSE_TOL = 1e-3  # relative candidate spread below which a block's fusion is determined (see ``_fuse``)
 
 
@@ -73,8 +78,8 @@ class C2FOptions:
       fusion uses only the block of its own level (and the coarsest fill searches one level).
     - block [11]: level-0 block (odd); coarser levels use ``max(7, block/2^L + 3)`` rounded to odd.
     - overlap [2]: overlap of neighbouring blocks (pixels); passes [(1, 1, 1)]: refinement passes at levels 0, 1, 2…
-      (last value repeats); iters [2]: PatchMatch scans per pass; search [(4, 8, 16, 16)]: random-search radius
-      per level (level pixels, last repeats).
+      (last value repeats); iters [1]: PatchMatch scans per pass (2: simulator hole RMSE 1.3 % lower, ≈ 10 %
+      slower, measured); search [(4, 8, 16, 16)]: random-search radius per level (level pixels, last repeats).
     - gradient ["anisotropic"|"sobel"]; fusion ["net"|"mean"|"best"]; w_depth [1.0]; match_threshold [1.0];
       alpha [4.0]; w_estimate [0.5]: similarity weight of estimated (not measured) target pixels; w_anchor [0.01]:
       their weight in the mean that candidates are shifted to (measured pixels weigh 1).
@@ -94,7 +99,7 @@ class C2FOptions:
     block: int = 11
     overlap: int = 2
     passes: tuple[int, ...] = (1, 1, 1)
-    iters: int = 2
+    iters: int = 1
     search: tuple[int, ...] = (4, 8, 16, 16)
     gradient: str = "anisotropic"
     fusion: str = "net"
@@ -337,7 +342,7 @@ class _CoarseToFine:
         # candidates: this level's block, then each coarser level's (upsampled)
         scales = [lv] if o.single_scale else list(range(lv, min(self.n_lv, lv + o.scales)))
         s_n = len(scales)
-        cands = np.zeros((s_n, k_n, b, b), np.float32)  # scale-major while sampling (contiguous), K×S×b×b below
+        cands = np.zeros((k_n, s_n, b, b), np.float32)
         q = np.full((k_n, s_n), -Q_CLIP, np.float32)
         found = np.zeros((k_n, s_n), bool)
         for si, lc in enumerate(scales):
@@ -352,24 +357,17 @@ class _CoarseToFine:
             off = np.full((k_n, 2), np.nan)
             jj = j[ok]
             off[ok] = f.best[jj] - f.centres[jj]
-            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[si])
+            sample_blocks(self.est[lc] if lc != lv else est, centres, h, 1.0 / k, off, cands[:, si])
             found[:, si] = ok
             q[ok, si] = -np.minimum(f.e[jj], Q_CLIP)
-        cands = np.ascontiguousarray(cands.transpose(1, 0, 2, 3))
         valid = found & (q > -o.match_threshold)
         none = ~valid.any(axis=1)
         valid[none] = found[none]  # 1_match fall-back: every level that found a block
         off = np.arange(-h, h + 1)
-        by = centres[:, 0, None, None] + off[None, :, None]
-        bx = centres[:, 1, None, None] + off[None, None, :]
-        by, bx = np.broadcast_arrays(by, bx)
-        est_blk = est[by, bx]
-        known_blk = known[by, bx]
-        w_blk = np.where(known_blk, np.float32(1.0), np.float32(o.w_anchor))
-        ws = w_blk.sum(axis=(1, 2))
-        mu_t = (est_blk * w_blk).sum(axis=(1, 2)) / ws
-        mu_c = (cands * w_blk[:, None]).sum(axis=(2, 3)) / ws[:, None]
-        cands += (mu_t[:, None] - mu_c)[:, :, None, None]
+        # the target block (estimate, measured mask) and every candidate shifted to its anchored mean
+        est_blk = np.empty((k_n, b, b), np.float32)
+        known_blk = np.empty((k_n, b, b), bool)
+        anchor_blocks(est, known, centres, h, np.float32(o.w_anchor), cands, est_blk, known_blk)
         still = ~valid.any(axis=1)
         if still.any():  # no block anywhere: keep the current estimate
             cands[still, 0] = est_blk[still]
@@ -399,6 +397,12 @@ def _nearest(src: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return seeds[lab[pts[:, 0], pts[:, 1]] - 1]
 
 
+@lru_cache(maxsize=4)
+def _net_arrays(path: str) -> NetArrays:
+    """The compiled network's weights of ``load_net(path)``."""
+    return net_arrays(load_net(path))
+
+
 def _fuse(o: C2FOptions, cands: np.ndarray, est_blk: np.ndarray, known_blk: np.ndarray, q: np.ndarray,
           valid: np.ndarray) -> np.ndarray:
     if o.fusion == "best":
@@ -407,7 +411,9 @@ def _fuse(o: C2FOptions, cands: np.ndarray, est_blk: np.ndarray, known_blk: np.n
     if o.fusion == "mean":
         w = softmax_weights(q, valid, o.alpha)
         return (w[:, :, None, None] * cands).sum(axis=1).astype(np.float32)
-    net = load_net(o.weights or str(C2F_WEIGHTS_FILE))
+    if COMPILED_NET and o.clamp_fusion:
+        return fuse_clamped(_net_arrays(o.weights or str(C2F_WEIGHTS_FILE)), cands, est_blk, known_blk, q, valid,
+                            o.alpha, FUSE_TOL, SIGMA_MIN)[0]
     vm = valid[:, :, None, None]
     lo = np.where(vm, cands, np.inf).min(axis=1)
     hi = np.where(vm, cands, -np.inf).max(axis=1)
@@ -427,7 +433,12 @@ def _fuse(o: C2FOptions, cands: np.ndarray, est_blk: np.ndarray, known_blk: np.n
             out[~run] = (w[:, :, None, None] * cands[~run]).sum(axis=1)
     if run.any():
         cn, tn, mu, sigma = normalise(cands[run], est_blk[run], np.ones(est_blk[run].shape, bool), valid[run])
-        res = run_net(net, cn, tn, hole[run], q[run], valid[run], native_conv=NATIVE_CONV, chunk=NET_CHUNK, fast=True)
+        if COMPILED_NET:
+            res = run_net_compiled(_net_arrays(o.weights or str(C2F_WEIGHTS_FILE)), cn, tn, hole[run], q[run],
+                                   valid[run])
+        else:
+            res = run_net(load_net(o.weights or str(C2F_WEIGHTS_FILE)), cn, tn, hole[run], q[run], valid[run],
+                          native_conv=NATIVE_CONV, chunk=NET_CHUNK, fast=True)
         out[run] = res * sigma[:, None, None] + mu[:, None, None]
     if o.clamp_fusion:  # a fusion of the candidates stays within their per-pixel range
         out = np.minimum(np.maximum(out, lo), hi)

@@ -23,25 +23,50 @@ from inpaint.jit import NJIT
 @numba.njit(**NJIT)
 def _sim(feat: np.ndarray, dep: np.ndarray, wt: np.ndarray, ty: int, tx: int, sy: int, sx: int, h: int,
          w_depth: float, inv_c: float, wsum: float, mu_t: float, bound: float) -> float:
-    """Sim of target (ty, tx) vs source (sy, sx); stops early (returns > bound) once the partial sum exceeds it."""
+    """Sim of target (ty, tx) vs source (sy, sx); stops early (returns inf) once the partial sum, checked after
+    every block row, exceeds ``bound``. With C = 8 channels (the anisotropic features) the gradient part keeps one
+    float64 accumulator per channel (eight independent chains instead of one serial one: the float64 sum is the same
+    up to rounding order), added up at each row end."""
     c_n = feat.shape[2]
     acc = 0.0
     sz = 0.0
     szz = 0.0
     lim = bound * wsum
+    a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
     for dy in range(-h, h + 1):
         for dx in range(-h, h + 1):
             w = wt[ty + dy, tx + dx]
             if w == 0.0:
                 continue
-            g = 0.0
-            for c in range(c_n):
-                d = feat[ty + dy, tx + dx, c] - feat[sy + dy, sx + dx, c]
-                g += d * d
-            acc += w * g * inv_c
+            ft = feat[ty + dy, tx + dx]
+            fs = feat[sy + dy, sx + dx]
+            if c_n == 8:
+                d0 = ft[0] - fs[0]
+                d1 = ft[1] - fs[1]
+                d2 = ft[2] - fs[2]
+                d3 = ft[3] - fs[3]
+                d4 = ft[4] - fs[4]
+                d5 = ft[5] - fs[5]
+                d6 = ft[6] - fs[6]
+                d7 = ft[7] - fs[7]
+                a0 += w * (d0 * d0)
+                a1 += w * (d1 * d1)
+                a2 += w * (d2 * d2)
+                a3 += w * (d3 * d3)
+                a4 += w * (d4 * d4)
+                a5 += w * (d5 * d5)
+                a6 += w * (d6 * d6)
+                a7 += w * (d7 * d7)
+            else:
+                g = 0.0
+                for c in range(c_n):
+                    d = ft[c] - fs[c]
+                    g += d * d
+                a0 += w * g
             z = dep[sy + dy, sx + dx] - (dep[ty + dy, tx + dx] - mu_t)
             sz += w * z
             szz += w * z * z
+        acc = (((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))) * inv_c
         if acc > lim:
             return np.inf
     var = szz - sz * sz / wsum
@@ -167,6 +192,41 @@ def sample_blocks(img: np.ndarray, centres: np.ndarray, h: int, inv_scale: float
                 top = img[y0, x0] * (1.0 - fx) + img[y0, x1] * fx
                 bot = img[y1, x0] * (1.0 - fx) + img[y1, x1] * fx
                 out[k, dy + h, dx + h] = top * (1.0 - fy) + bot * fy
+
+
+@numba.njit(**NJIT)
+def anchor_blocks(est: np.ndarray, known: np.ndarray, centres: np.ndarray, h: int, w_anchor: np.float32,
+                  cands: np.ndarray, est_blk: np.ndarray, known_blk: np.ndarray) -> None:
+    """Target blocks and candidate shift of a refinement pass: ``est_blk[k]`` / ``known_blk[k]`` (b×b, b = 2h+1)
+    = ``est`` / ``known`` (H×W) around centre k; every candidate ``cands[k, s]`` (K×S×b×b, in place) is shifted by
+    μ_t − μ_c, the difference of the target's and the candidate's weighted block means, weights 1 on measured
+    pixels and ``w_anchor`` on estimated ones (float64 sums)."""
+    k_n, s_n, b, _ = cands.shape
+    one = np.float32(1.0)
+    for k in range(k_n):
+        cy, cx = centres[k, 0] - h, centres[k, 1] - h
+        ws = 0.0
+        st = 0.0
+        for y in range(b):
+            for x in range(b):
+                kn = known[cy + y, cx + x]
+                v = est[cy + y, cx + x]
+                est_blk[k, y, x] = v
+                known_blk[k, y, x] = kn
+                w = one if kn else w_anchor
+                ws += w
+                st += w * v
+        mu_t = st / ws
+        for s in range(s_n):
+            sc = 0.0
+            for y in range(b):
+                for x in range(b):
+                    w = one if known_blk[k, y, x] else w_anchor
+                    sc += w * cands[k, s, y, x]
+            d = np.float32(mu_t - sc / ws)
+            for y in range(b):
+                for x in range(b):
+                    cands[k, s, y, x] += d
 
 
 @numba.njit(**NJIT)

@@ -17,7 +17,8 @@ are used).
 
 About 5 k parameters (≈ 25 kB of float32 weights) with the default sizes (``paper-greedy``'s weights); the
 coarse-to-fine method (``paper``) runs it on every hole block of every level and ships a narrower one (features 4,
-one dense layer, 8 hidden channels: ≈ 1.5 k parameters, ``weights/fusion_net_c2f.*``). The sizes are read from the
+one dense layer, 4 hidden channels: 738 parameters, ``weights/fusion_net_c2f.*``), compiled for inference in
+``inpaint.fusion_kernels``. The sizes are read from the
 JSON record beside the weights.
 """
 

@@ -28,8 +28,10 @@ from pipeline.process_pool import spawn_pool
 
 #: Bump when the stage changes its outputs (invalidates inpainted caches). 2: ``paper`` is the coarse-to-fine
 #: formulation (the greedy one is ``paper-greedy``). 3: issue 12 — compiled coarsest search (rounding), nearest-source
-#: init, the network in its inference form and the fusion skip where candidates agree.
-INPAINT_STAGE_VERSION = 3
+#: init, the network in its inference form and the fusion skip where candidates agree. 4: issue 12, second round —
+#: the fusion network compiled (``inpaint.fusion_kernels``), a 4-channel decoder (new ``fusion_net_c2f`` weights),
+#: one PatchMatch scan per pass, the anchored candidate shift in float64.
+INPAINT_STAGE_VERSION = 4
 
 
 @dataclass(frozen=True)

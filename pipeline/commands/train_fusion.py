@@ -12,8 +12,9 @@ from pipeline.atomic import atomic_path, write_json_atomic
 from pipeline.errors import AgrivioError
 
 #: Network size of the coarse-to-fine method's fusion (the PLIP-softmax architecture of inpaint.fusion_net with
-#: fewer channels): it runs on every hole block of every level, so it must be cheap (≈1.5 k parameters).
-C2F_NET = {"features": 4, "growth": 4, "dense_layers": 1, "hidden": 8}
+#: fewer channels): it runs on every hole block of every level, so it must be cheap (738 parameters; a 4-channel
+#: decoder since issue 12, the 8-channel one measured no better).
+C2F_NET = {"features": 4, "growth": 4, "dense_layers": 1, "hidden": 4}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,6 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "worse on the simulator benchmark than training without it: 0.904 vs 0.888 m hole RMSE)")
     p.add_argument("--noise-fraction", type=float, default=0.0,
                    help="c2f: share of the masks whose known pixels carry stereo-matching noise (ground truth exact)")
+    p.add_argument("--hidden", type=int, default=None,
+                   help=f"decoder channels of the c2f network (default {C2F_NET['hidden']})")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: the package's inpaint/weights, i.e. the shipped weights)")
     p.add_argument("--quiet", action="store_true")
@@ -87,6 +90,15 @@ def _frames(source: str, n: int, seed: int):
                     f"{10_000 + seed * 1000}..{10_000 + seed * 1000 + n - 1}; 376×672; the simulator was not used)")
 
 
+def _c2f_net(args: argparse.Namespace) -> dict:
+    net = dict(C2F_NET)
+    if args.hidden is not None:
+        if args.hidden < 1:
+            raise AgrivioError("train-fusion: --hidden must be ≥ 1")
+        net["hidden"] = args.hidden
+    return net
+
+
 def run(args: argparse.Namespace) -> int:
     from inpaint.fusion_net import WEIGHTS_DIR
     from inpaint.train import TrainConfig, collect_examples, train_fusion
@@ -98,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     c2f = args.formulation == "c2f"
     cfg = TrainConfig(seed=args.seed, masks_per_frame=args.masks_per_frame, epochs=args.epochs,
                       max_seconds=args.max_minutes * 60.0, max_examples=args.max_examples,
-                      formulation=args.formulation, net=dict(C2F_NET) if c2f else {}, clamp=args.clamp_training,
+                      formulation=args.formulation, net=_c2f_net(args) if c2f else {}, clamp=args.clamp_training,
                       noise_fraction=args.noise_fraction if c2f else 0.0)
     bar = tqdm(total=len(frames) * cfg.masks_per_frame, desc="collect blocks", disable=args.quiet)
     ex = collect_examples(frames, cfg, progress=lambda d, n: bar.update(d - bar.n))
