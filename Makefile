@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.agrivio-installed
 
-.PHONY: demo test venv clean-cache
+.PHONY: demo test lint venv clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,7 +20,12 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/agrivio demo
 
-test: $(STAMP)
+# ruff (the rule set in pyproject.toml) and mypy on the libraries, then the tests
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
+
+test: lint
 	$(PY) -m pytest -q
 
 clean-cache:

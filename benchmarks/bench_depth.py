@@ -18,8 +18,7 @@ import numpy as np
 
 from pipeline.atomic import write_json_atomic
 from pipeline.calibration import rig_from_camchain
-from pipeline.depth import (DepthParams, compute_depth, disparity_right, disparity_sgbm, left_right_check,
-                            rectify_grey)
+from pipeline.depth import DepthParams, compute_depth, disparity_right, disparity_sgbm, left_right_check, rectify_grey
 from pipeline.paths import ROSARIO_CAMCHAIN, cache_dir
 from pipeline.synthetic_scene import StereoRenderer
 

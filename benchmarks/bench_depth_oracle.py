@@ -38,14 +38,13 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.depth_oracle_run import (default_config, ladder_verdict, prepare_oracle, run_ladder,  # noqa: E402
-                                       stereo_reference)
+from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder, stereo_reference  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
 
 
 def _fmt(res: dict, seeds: list[int]) -> list[str]:
-    lines = [f"| rung | ATE RMSE mean (m) | per seed | depth on features | gated out | failed |",
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | gated out | failed |",
              "|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]

@@ -43,8 +43,16 @@ from msckf.frontend import DepthFrontend, StereoFrontend  # noqa: E402
 from msckf.frontend_config import FrontendConfig  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
-from tests.test_msckf_frontend_scene import (Plane, gyro_samples, make_texture, pose_from, rectified_depth,  # noqa: E402
-                                             render, scene_rig, stereo_pose)
+from tests.test_msckf_frontend_scene import (  # noqa: E402
+    Plane,
+    gyro_samples,
+    make_texture,
+    pose_from,
+    rectified_depth,
+    render,
+    scene_rig,
+    stereo_pose,
+)
 
 RATE_HZ = 15.0
 IMU_HZ = 150.0

@@ -174,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
         s = sim["summary"]
         base, cbase = s["telea"]["median_ms"], s["telea"]["median_cpu_ms"]
         hr = sim["hole_ratios"]
-        print(f"\nsimulator frames, real SGBM masks ({len(hr)} frames, holes {100 * min(hr):.0f}–{100 * max(hr):.0f} %, "
+        print(f"\nsimulator frames, real SGBM masks ({len(hr)} frames, "
+              f"holes {100 * min(hr):.0f}–{100 * max(hr):.0f} %, "
               f"median {100 * float(np.median(hr)):.0f} %); hole metrics, GT ≤ {MAX_DEPTH:g} m, PSNR peak {PEAK:g} m")
         head = (f"{'method':14s} {'median ms':>10s} {'× Telea':>8s} {'CPU ms':>8s} {'× Telea':>8s} {'RMSE m':>8s} "
                 f"{'PSNR':>7s} {'SSIM':>7s}")

@@ -131,7 +131,8 @@ def whole_run(preset: str, durations: list[float], variants: list[str], json_pat
             results.append(res)
             print(f"{preset} {duration:g} s {variant}: peak RSS {res['peak_rss_mb']:.0f} MB, {res['frames']} frames, "
                   f"{res['wall_s']:.0f} s ({res['status']})", flush=True)
-    print(f"\n{'variant':<16} " + " ".join(f"{f'{d:g} s (MB)':>12}" for d in durations) + f" {'growth MB/1000 frames':>22}")
+    print(f"\n{'variant':<16} " + " ".join(f"{f'{d:g} s (MB)':>12}" for d in durations)
+          + f" {'growth MB/1000 frames':>22}")
     for variant in variants:
         rows = [r for r in results if r["variant"] == variant]
         peaks = [r["peak_rss_mb"] for r in rows]

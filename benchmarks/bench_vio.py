@@ -44,14 +44,14 @@ sys.path.insert(0, str(ROOT))
 
 def _load(preset: str, duration_s: float, variant: str, max_frames: int | None) -> dict:
     """Decode the sequence's frames (and depth) into memory; fills the depth cache when missing."""
+    import cv2
+
     from pipeline.bag_reader import RosarioSequence
     from pipeline.depth import DepthParams
     from pipeline.depth_cache import DepthCache, depth_stream
     from pipeline.depth_sigma import DepthSigmaModel
     from pipeline.paths import cache_dir
     from pipeline.sources import resolve_source
-
-    import cv2
 
     root = cache_dir()
     src = resolve_source(preset, duration_s=duration_s, cache_root=root, progress=False)

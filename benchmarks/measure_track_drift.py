@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     prep = prepare_oracle(src.sim_dir, cache_dir(), [], default_config({}), [0], None)
     errs = track_errors(sim, prep["logs"][0], prep["rig"].K_rect)
     rows = []
-    print(f"{preset}: {len(errs)} tracks on flat depth\n\n| lag (frames) | n | per-axis variance (px²) | robust σ (px) |")
+    print(f"{preset}: {len(errs)} tracks on flat depth\n")
+    print("| lag (frames) | n | per-axis variance (px²) | robust σ (px) |")
     print("|---|---|---|---|")
     for lag in LAGS:
         inc = np.array([e[lag] - e[0] for e in errs if len(e) > lag])

@@ -46,7 +46,7 @@ class Alignment:
     n_pairs: int = 0
 
     @classmethod
-    def identity(cls, n_pairs: int = 0) -> "Alignment":
+    def identity(cls, n_pairs: int = 0) -> Alignment:
         return cls("none", np.eye(3), np.zeros(3), 1.0, n_pairs)
 
     def matrix(self) -> np.ndarray:

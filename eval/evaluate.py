@@ -61,7 +61,7 @@ class EvalOptions:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "EvalOptions":
+    def from_dict(cls, data: Mapping[str, Any]) -> EvalOptions:
         """The inverse of :meth:`to_dict` (lists become tuples). Keys of other versions and None values are
         ignored, so a record written by another version still gives the options it can state."""
         names = {f.name for f in fields(cls)}

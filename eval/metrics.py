@@ -51,7 +51,7 @@ class ErrorStats:
     sse: float
 
     @classmethod
-    def of(cls, errors: np.ndarray) -> "ErrorStats":
+    def of(cls, errors: np.ndarray) -> ErrorStats:
         e = np.asarray(errors, dtype=np.float64).reshape(-1)
         if e.size == 0:
             nan = float("nan")

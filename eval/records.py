@@ -137,7 +137,7 @@ class RunRecord:
         return out
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], source: str = "<record>") -> "RunRecord":
+    def from_dict(cls, data: Mapping[str, Any], source: str = "<record>") -> RunRecord:
         """Parse a record dict; unknown keys go to ``extra``. Missing optional keys take defaults.
 
         Ok and failed records share one layout (the batch runner's failed records carry the inpainting method at

@@ -18,9 +18,9 @@ import numpy as np
 
 from eval.compare import AFTER, BEFORE, ComparisonRow, Table, compare_groups, markdown_table, table2, variants_table
 from eval.evaluate import Evaluation
+from eval.instrument import instrument_table
 from eval.plots import plot_ate_boxplot, plot_error_over_time, plot_rpe_vs_distance, plot_top_view
 from eval.records import RunRecord
-from eval.instrument import instrument_table
 from eval.rpe_table import rpe_table
 from eval.statistics import GroupStats, summarize, variant_sort_key
 from eval.turns import find_turns

@@ -39,7 +39,7 @@ class MetricSummary:
     values: tuple[float, ...]
 
     @classmethod
-    def of(cls, values: Sequence[float | None]) -> "MetricSummary":
+    def of(cls, values: Sequence[float | None]) -> MetricSummary:
         v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
         nan = float("nan")
         if v.size == 0:

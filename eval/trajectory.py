@@ -72,7 +72,7 @@ class Trajectory:
 
     # ---- construction -------------------------------------------------------------------------------------------
     @classmethod
-    def from_positions(cls, stamps_s: np.ndarray, positions: np.ndarray) -> "Trajectory":
+    def from_positions(cls, stamps_s: np.ndarray, positions: np.ndarray) -> Trajectory:
         """A position-only trajectory (identity quaternions, ``has_orientation=False``)."""
         stamps = np.asarray(stamps_s, dtype=np.float64).reshape(-1)
         quats = np.zeros((stamps.shape[0], 4))
@@ -106,12 +106,12 @@ class Trajectory:
             np.cumsum(np.linalg.norm(np.diff(self.positions, axis=0), axis=1), out=out[1:])
         return out
 
-    def subset(self, index: np.ndarray) -> "Trajectory":
+    def subset(self, index: np.ndarray) -> Trajectory:
         """The poses at ``index`` (integer indices or a boolean mask), same ``has_orientation``."""
         return Trajectory(self.stamps_s[index], self.positions[index], self.quats_xyzw[index],
                           has_orientation=self.has_orientation)
 
-    def transformed(self, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> "Trajectory":
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> Trajectory:
         """Apply ``p' = s·R·p + t`` and ``R'_world_body = R·R_world_body`` (R (3,3), t (3,) metres).
 
         Orientations of a position-only trajectory stay identity.

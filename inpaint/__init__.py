@@ -19,8 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from inpaint.c2f import C2FOptions, inpaint_paper_c2f
 from inpaint.baselines import inpaint_biharmonic, inpaint_ipbasic, inpaint_ns, inpaint_telea
+from inpaint.c2f import C2FOptions, inpaint_paper_c2f
 from inpaint.ebm import inpaint_ebm
 from inpaint.errors import InpaintInputError
 from inpaint.method import PaperOptions, inpaint_paper

@@ -84,9 +84,9 @@ class C2FOptions:
       alpha [4.0]; w_estimate [0.5]: similarity weight of estimated (not measured) target pixels; w_anchor [0.01]:
       their weight in the mean that candidates are shifted to (measured pixels weigh 1).
     - coarse_block [7], coarse_levels [2], coarse_radius [(6, 5, 4)], coarse_max_blocks [64]: the greedy fill of
-      the coarsest level (``paper-greedy``'s block, levels, radius and blocks per round there); coarse_fusion ["best"; None =
-      ``fusion``] its fusion (``paper-greedy``'s network is trained on full-resolution blocks; at the coarsest
-      level the best block was measured better: simulator hole RMSE 0.822 vs 0.888 m, and faster).
+      the coarsest level (``paper-greedy``'s block, levels, radius and blocks per round there); coarse_fusion
+      ["best"; None = ``fusion``] its fusion (``paper-greedy``'s network is trained on full-resolution blocks; at the
+      coarsest level the best block was measured better: simulator hole RMSE 0.822 vs 0.888 m, and faster).
     - domain ["inverse"|"depth"]; weights [None]: fusion weights of the fine levels (None = shipped
       ``fusion_net_c2f.pt``); coarse_weights [None]: those of the greedy coarsest fill (None = ``fusion_net.pt``).
     - seed [0]: seed of the random search (the output is deterministic for a given seed); clamp_fusion [True]: the
@@ -276,7 +276,8 @@ class _CoarseToFine:
             popts = PaperOptions(levels=0 if o.single_scale else o.coarse_levels, single_scale=o.single_scale,
                                  block=min(o.coarse_block, (min(kt.shape) - 1) // 2 * 2 + 1),
                                  radius=o.coarse_radius, gradient=o.gradient,
-                                 fusion=o.coarse_fusion or o.fusion, w_depth=o.w_depth, match_threshold=o.match_threshold,
+                                 fusion=o.coarse_fusion or o.fusion, w_depth=o.w_depth,
+                                 match_threshold=o.match_threshold,
                                  alpha=o.alpha, weights=o.coarse_weights, max_blocks=o.coarse_max_blocks)
             est = _CoarseFiller(np.where(kt, self.d[top], 0).astype(np.float32), ~kt, popts, None).run()
         np.clip(est, *self.value_range, out=est)

@@ -24,7 +24,6 @@ import numpy as np
 from inpaint.jit import NJIT
 
 
-
 @dataclass(frozen=True)
 class NetArrays:
     """The weights of a ``FusionNet`` as contiguous float32 numpy arrays (torch layout: out × in × 3 × 3).
@@ -349,9 +348,9 @@ def _forward_blocks(cands: np.ndarray, target: np.ndarray, hole: np.ndarray, wts
                     w0: np.ndarray, b0: np.ndarray, wd: np.ndarray, bd: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                     v0: np.ndarray, c0: np.ndarray, v1: np.ndarray, c1: np.ndarray, v2: np.ndarray, c2: np.ndarray,
                     gamma: np.float32, out: np.ndarray, sel: np.ndarray) -> None:
-    """For each block k in ``sel``: shared part of the first encoder convolution; per valid scale the encoder up to its sigmoid and
-    the PLIP term w·log(1 − F/γ) with F = γ(1 − 1e-4)·sigmoid(pre), i.e. log((e + 1e-4)/(1 + e)), e = exp(−pre)
-    (no cancellation); fused = γ·(1 − exp(Σ terms)); then the decoder on [fused, target, hole, base] and
+    """For each block k in ``sel``: shared part of the first encoder convolution; per valid scale the encoder up to its
+    sigmoid and the PLIP term w·log(1 − F/γ) with F = γ(1 − 1e-4)·sigmoid(pre), i.e. log((e + 1e-4)/(1 + e)),
+    e = exp(−pre) (no cancellation); fused = γ·(1 − exp(Σ terms)); then the decoder on [fused, target, hole, base] and
     out = base + residual, base = Σ_s w_s cands[s]."""
     b_n, s_n, b, _ = cands.shape
     f_n = w0.shape[0]

@@ -38,8 +38,14 @@ import numpy as np
 from inpaint.block_search import LevelGrid, search_level
 from inpaint.errors import InpaintInputError
 from inpaint.fusion import FUSION_MODES, fuse
-from inpaint.gradient import (GRADIENT_KINDS, FeatureJob, n_channels, run_feature_jobs,
-                              template_radius, vector_from_channels)
+from inpaint.gradient import (
+    GRADIENT_KINDS,
+    FeatureJob,
+    n_channels,
+    run_feature_jobs,
+    template_radius,
+    vector_from_channels,
+)
 from inpaint.priority import confidence_term, data_term, fill_front, front_normals, select_blocks
 from inpaint.pyramid import masked_pyrdown, sample_bilinear
 from inpaint.validate import check_inputs, finish

@@ -177,7 +177,8 @@ def _collect_c2f(frames: Sequence[TrainingFrame], cfg: TrainConfig,
                 continue
 
             def observer(lv: int, centres: np.ndarray, cands: np.ndarray, target: np.ndarray, known: np.ndarray,
-                         q: np.ndarray, valid: np.ndarray) -> None:
+                         q: np.ndarray, valid: np.ndarray, gts: list[np.ndarray] = gts,
+                         oks: list[np.ndarray] = oks) -> None:
                 if lv not in cfg.c2f_levels:
                     return
                 hb = target.shape[1] // 2

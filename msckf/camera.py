@@ -197,7 +197,7 @@ class StereoRig:
         T_right_left: np.ndarray,
         T_left_imu: np.ndarray,
         alpha: float = 0.0,
-    ) -> "StereoRig":
+    ) -> StereoRig:
         """Compute the rectification with ``cv2.stereoRectify`` (``CALIB_ZERO_DISPARITY``), as the Rosario bags do.
 
         Args:

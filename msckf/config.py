@@ -22,8 +22,16 @@ import yaml
 
 from msckf.errors import MsckfInputError
 from msckf.frontend_config import FrontendConfig
-from msckf.options import (DepthOptions, HealthOptions, ImuNoise, InitOptions, PropagationOptions, TriangulationParams,
-                           UpdateOptions, WindowOptions)
+from msckf.options import (
+    DepthOptions,
+    HealthOptions,
+    ImuNoise,
+    InitOptions,
+    PropagationOptions,
+    TriangulationParams,
+    UpdateOptions,
+    WindowOptions,
+)
 
 __all__ = ["FLAT_KEYS", "GROUPS", "MsckfConfig", "load_config"]
 

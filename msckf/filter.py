@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from msckf.augmentation import augment
-from msckf.config import MsckfConfig
 from msckf.camera import check_transform
+from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
 from msckf.propagation import propagate_samples
@@ -26,9 +26,22 @@ from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
 from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
-from msckf.update import (FeatureBatch, MeasurementSpec, bucket_by_length, chi2_threshold, downweight_features,
-                          ekf_update_information, find_redundant_clones, gating_chi2, inject_correction,
-                          inverse_depth_sigma, measurement_blocks, qr_update, schur_information, whiten_track_drift)
+from msckf.update import (
+    FeatureBatch,
+    MeasurementSpec,
+    bucket_by_length,
+    chi2_threshold,
+    downweight_features,
+    ekf_update_information,
+    find_redundant_clones,
+    gating_chi2,
+    inject_correction,
+    inverse_depth_sigma,
+    measurement_blocks,
+    qr_update,
+    schur_information,
+    whiten_track_drift,
+)
 
 __all__ = ["MsckfFilter", "FrameStats"]
 
@@ -265,8 +278,14 @@ class MsckfFilter:
         self.last_stats = st
         return pose
 
+    def _initialised(self) -> ImuState:
+        """The IMU state of an initialised filter (the steps that call this run only after initialisation)."""
+        if self.state is None:
+            raise RuntimeError("the MSCKF is not initialised yet")
+        return self.state
+
     def _propagate_to(self, stamp: float) -> None:
-        st = self.state
+        st = self._initialised()
         i = 0
         while i < len(self._imu_t) and self._imu_t[i] <= stamp:
             i += 1
@@ -474,7 +493,7 @@ class MsckfFilter:
                                     for f in ("pos", "Hx", "Hf", "r", "rows")))
             dx, P_new = qr_update(self.P, merged, sigma, n_cl)
         self.P = P_new
-        inject_correction(self.state, self.clones, dx)
+        inject_correction(self._initialised(), self.clones, dx)
         return used
 
     @staticmethod
@@ -542,7 +561,7 @@ class MsckfFilter:
 
     # ------------------------------------------------------------------------------------------ output
     def _check_health(self, stamp: float) -> None:
-        s = self.state
+        s = self._initialised()
         vals = (s.R_w_i, s.p, s.v, s.b_g, s.b_a, s.R_c_i, s.p_i_c)
         if not all(np.all(np.isfinite(x)) for x in vals):
             raise FilterDivergedError("non-finite IMU state", stamp)
@@ -563,7 +582,7 @@ class MsckfFilter:
             raise FilterDivergedError("covariance is not positive semi-definite", stamp) from None
 
     def _pose(self, stamp: float) -> PoseEstimate:
-        s = self.state
+        s = self._initialised()
         return PoseEstimate(stamp_s=stamp, p_world=s.p.copy(), q_world_imu_xyzw=matrix_to_quat_xyzw(s.R_w_i),
                             v_world=s.v.copy(), gyro_bias=s.b_g.copy(), acc_bias=s.b_a.copy(),
                             cov_diag=np.diag(self.P)[:IMU_DIM].copy())

@@ -45,10 +45,21 @@ import numpy as np
 from msckf.camera import StereoRig, check_transform
 from msckf.errors import MsckfInputError
 from msckf.frontend_config import FrontendConfig
-from msckf.frontend_depth import (DepthReject, depth_to_stereo, nearest_pixel_values, rectified_pixels_from_normalised,
-                                  sample_depth)
-from msckf.frontend_geometry import (GyroBuffer, camera_rotation, epipolar_distance, rotate_normalised,
-                                     triangulated_depths, two_point_ransac)
+from msckf.frontend_depth import (
+    DepthReject,
+    depth_to_stereo,
+    nearest_pixel_values,
+    rectified_pixels_from_normalised,
+    sample_depth,
+)
+from msckf.frontend_geometry import (
+    GyroBuffer,
+    camera_rotation,
+    epipolar_distance,
+    rotate_normalised,
+    triangulated_depths,
+    two_point_ransac,
+)
 from msckf.frontend_grid import cell_index, detect_fast_in_cells, exclusion_mask, top_per_group
 from msckf.types import DepthSource, FeatureObservations
 
@@ -100,19 +111,19 @@ class _Tracks:
     life: np.ndarray       # (N,) int32 frames observed
 
     @classmethod
-    def empty(cls) -> "_Tracks":
+    def empty(cls) -> _Tracks:
         return cls(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)),
                    np.zeros(0, np.int32))
 
     def __len__(self) -> int:
         return len(self.ids)
 
-    def select(self, keep: np.ndarray) -> "_Tracks":
+    def select(self, keep: np.ndarray) -> _Tracks:
         return _Tracks(self.ids[keep], self.px0[keep], self.xy0[keep], self.px1[keep], self.xy1[keep],
                        self.life[keep])
 
     @staticmethod
-    def concat(a: "_Tracks", b: "_Tracks") -> "_Tracks":
+    def concat(a: _Tracks, b: _Tracks) -> _Tracks:
         return _Tracks(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
                          ("ids", "px0", "xy0", "px1", "xy1", "life")))
 

@@ -148,7 +148,7 @@ class FrontendConfig:
         return max(1, math.ceil(math.log(1.0 - p) / math.log(1.0 - r * r)))
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any] | None, source: str = "front-end config") -> "FrontendConfig":
+    def from_mapping(cls, values: Mapping[str, Any] | None, source: str = "front-end config") -> FrontendConfig:
         """Build from a mapping (e.g. a YAML section); keys not given keep their defaults.
 
         Raises:

@@ -41,8 +41,8 @@ from msckf.options import DepthOptions, PropagationOptions, UpdateOptions, Windo
 from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
-__all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2", "chi2_threshold",
-           "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information",
+__all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2",
+           "chi2_threshold", "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information",
            "null_space_project", "null_space_project_active", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
@@ -73,7 +73,7 @@ class MeasurementSpec:
 
     @classmethod
     def from_options(cls, R_c1_c0: np.ndarray, t_c1_c0: np.ndarray, g_w: np.ndarray, update: UpdateOptions,
-                     depth: DepthOptions, propagation: PropagationOptions) -> "MeasurementSpec":
+                     depth: DepthOptions, propagation: PropagationOptions) -> MeasurementSpec:
         """The spec of a filter: its stereo extrinsics and gravity, and the noise / depth settings of its groups."""
         return cls(R_c1_c0, t_c1_c0, g_w, update.feature_noise, oc=propagation.observability_constrained,
                    depth_row=depth.depth_row, depth_inv_sigma=depth.depth_inv_sigma,
@@ -114,7 +114,7 @@ class FeatureBatch:
         """(k,) valid rows per feature."""
         return self.rows.sum(axis=(1, 2))
 
-    def subset(self, sel: np.ndarray) -> "FeatureBatch":
+    def subset(self, sel: np.ndarray) -> FeatureBatch:
         return FeatureBatch(self.pos[sel], self.Hx[sel], self.Hf[sel], self.r[sel], self.rows[sel])
 
 

@@ -31,7 +31,7 @@ from msckf.camera import StereoRig
 from pipeline import rosario_layout as L
 from pipeline.bag_parts import SplitBagPath, bag_size, bag_source, resolve_bag_parts
 from pipeline.bag_typestore import rosario_typestore
-from pipeline.calibration import Camchain, CameraInfo, CalibrationError, read_camchain, rig_from_camera_info
+from pipeline.calibration import CalibrationError, Camchain, CameraInfo, read_camchain, rig_from_camera_info
 from pipeline.errors import BagError
 from pipeline.paths import ROSARIO_CAMCHAIN
 
@@ -636,7 +636,7 @@ class RosarioSequence:
     def __repr__(self) -> str:
         return f"RosarioSequence({str(self.path)!r}, {len(self.parts)} part(s), {self.size_bytes} bytes)"
 
-    def __enter__(self) -> "RosarioSequence":
+    def __enter__(self) -> RosarioSequence:
         return self
 
     def __exit__(self, *exc: object) -> bool:

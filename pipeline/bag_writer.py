@@ -20,8 +20,8 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-from rosbags.rosbag1 import Writer
 from rosbags.interfaces import Connection
+from rosbags.rosbag1 import Writer
 from scipy.spatial.transform import Rotation
 
 from msckf.camera import StereoRig
@@ -79,7 +79,7 @@ class RosarioBagWriter:
         self._info_size: tuple[int, int] | None = None  # (height, width)
 
     # ---- context manager -----------------------------------------------------------------------------------
-    def __enter__(self) -> "RosarioBagWriter":
+    def __enter__(self) -> RosarioBagWriter:
         if self.path.exists() and not self.overwrite:
             raise FileExistsError(f"{self.path}: refusing to overwrite an existing bag")
         stack = contextlib.ExitStack()

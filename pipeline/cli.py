@@ -16,7 +16,6 @@ import sys
 from pipeline import commands
 from pipeline.errors import AgrivioError
 
-
 #: OSError numbers that mean "the output cannot be written" (reported in one line, exit 2).
 _DISK_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS}
 

@@ -59,7 +59,7 @@ class _Encoded:
     hole_ratio: float = float("nan")  # NaN: a chunk written before hole ratios were stored
 
     @classmethod
-    def of(cls, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> "_Encoded":
+    def of(cls, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> _Encoded:
         """Encode ``frame``; ``depth_mm``: its uint16 millimetre map when the caller already has it (not rounded
         again)."""
         mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm

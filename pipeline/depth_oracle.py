@@ -152,7 +152,7 @@ def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[i
     truth = [np.full(len(fr.ids), np.nan) for fr in log.frames]
     source = [np.zeros(len(fr.ids), np.uint8) for fr in log.frames]
     rms_all: list[float] = []
-    for tid, lst in obs_of.items():
+    for lst in obs_of.values():
         if len(lst) < 2:
             continue
         fis = np.array([a for a, _ in lst])
@@ -260,7 +260,7 @@ class Rung:
     """
 
     name: str
-    depth: Callable[[TrackLog, int], "tuple[np.ndarray, np.ndarray | None]"]
+    depth: Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]
     chain: str = ""
     order: int = 0
 

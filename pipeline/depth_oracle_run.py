@@ -17,8 +17,15 @@ from msckf.config import MsckfConfig, load_config
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams, to_grey
 from pipeline.depth_cache import DepthCache, depth_stream
-from pipeline.depth_oracle import (Rung, TrackLog, evaluate_rung, record_tracks, run_backend, standard_rungs,
-                                   true_track_depths)
+from pipeline.depth_oracle import (
+    Rung,
+    TrackLog,
+    evaluate_rung,
+    record_tracks,
+    run_backend,
+    standard_rungs,
+    true_track_depths,
+)
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
 from pipeline.run_job import lever_arms_from_tf
@@ -144,7 +151,7 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
         for name, r in res.items():
             if r["chain"]:
                 chains.setdefault(r["chain"], []).append((r["order"], name))
-        for chain, members in chains.items():
+        for members in chains.values():
             members.sort()
             for (_, a), (_, b) in zip(members, members[1:]):
                 ra, rb = res[a], res[b]
@@ -172,10 +179,10 @@ def default_config(overrides: dict[str, Any] | None = None) -> MsckfConfig:
 def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], prepared: dict[str, Any],
                      max_frames: int | None = None) -> dict[str, Any]:
     """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs)."""
+    from eval.trajectory import Trajectory
     from msckf.errors import FilterDivergedError
     from msckf.init import NonStaticStartError
     from msckf.vio import Msckf
-    from eval.trajectory import Trajectory
 
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)

@@ -68,7 +68,7 @@ class DepthSigmaModel:
     fill: dict[str, tuple[float, float, float]] = field(default_factory=lambda: dict(FILL_CALIBRATION))
 
     @classmethod
-    def for_rig(cls, rig) -> "DepthSigmaModel":
+    def for_rig(cls, rig) -> DepthSigmaModel:
         """The model for a :class:`msckf.camera.StereoRig` (its rectified fx and baseline)."""
         return cls(float(rig.fx * rig.baseline))
 

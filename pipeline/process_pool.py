@@ -10,8 +10,9 @@ Each worker runs single-threaded (one job = one core): parallelism is across pro
 from __future__ import annotations
 
 import multiprocessing as mp
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Callable
+from typing import Any
 
 
 def _single_threaded(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:

@@ -31,9 +31,7 @@ def simulate_cached(preset: str, seed: int = 0, duration_s: float | None = None,
     A folder counts as complete when its ``meta.json`` exists (the simulator writes it last). The antenna lever
     arm comes from the bag's ``tf_static`` like for a real bag.
     """
-    from pipeline.sim.sequence import SIM_VERSION, SimulatedSequence, simulate_sequence
-
-    from pipeline.sim.sequence import resolve_config
+    from pipeline.sim.sequence import SIM_VERSION, SimulatedSequence, resolve_config, simulate_sequence
 
     out = simulated_dir(preset, seed, duration_s, cache_root)
     wanted = json.loads(json.dumps(resolve_config(preset, duration_s).to_dict()))  # tuples → lists, as on disk

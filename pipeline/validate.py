@@ -47,7 +47,7 @@ def check_unknown_keys(given: Iterable[str], known: Iterable[str], where: str, s
         raise error(f"{where}: unknown key(s) {', '.join(bad)}{tail}")
 
 
-def resolve_msckf_config(path: str | Path | None) -> "MsckfConfig":
+def resolve_msckf_config(path: str | Path | None) -> MsckfConfig:
     """Parse and validate the MSCKF ``--config`` YAML once (defaults when None); return the resolved config.
 
     The one place the file is read: the result travels in the :class:`pipeline.run_plan.RunPlan` of every run.

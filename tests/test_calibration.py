@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.calibration import (CalibrationError, camchain_yaml, camera_info_from_rig, read_camchain,
-                                  rig_from_camchain, rig_from_camera_info, write_camchain)
+from pipeline.calibration import (
+    CalibrationError,
+    camchain_yaml,
+    camera_info_from_rig,
+    read_camchain,
+    rig_from_camchain,
+    rig_from_camera_info,
+    write_camchain,
+)
 from pipeline.paths import ROSARIO_CAMCHAIN
 
 

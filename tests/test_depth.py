@@ -5,8 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.depth import (DepthParams, compute_depth, decode_depth_mm, depth_from_rectified, encode_depth_mm,
-                            left_right_check)
+from pipeline.depth import (
+    DepthParams,
+    compute_depth,
+    decode_depth_mm,
+    depth_from_rectified,
+    encode_depth_mm,
+    left_right_check,
+)
 from pipeline.synthetic_scene import StereoRenderer, shifted_pair
 
 FX, BASELINE = 351.06043408538426, 0.1187186478877293  # the Rosario rectified rig

@@ -49,7 +49,7 @@ def test_tracked_point_truth_is_the_true_depth_and_sliding_tracks_get_none():
         return edge_map, np.ones_like(edge_map, bool), None
 
     stats = true_track_depths(log, K, poses, exact_map=None)
-    for k, fr in enumerate(log.frames):
+    for k in range(len(log.frames)):
         z_true = (poses[k][:3, :3].T @ (point - poses[k][:3, 3]))[2]
         assert log.truth[k][0] == pytest.approx(z_true, rel=1e-6) and log.truth_source[k][0] == 1
         assert np.isnan(log.truth[k][1]) and log.truth_source[k][1] == 0  # no consistent 3-D point: no truth

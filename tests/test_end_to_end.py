@@ -93,7 +93,7 @@ def test_replay_loads_back_with_rerun(runs_dir, tmp_path):
 def test_rerun_keeps_finished_runs(runs_dir):
     """run-sequence again on the same folder: every record exists, so nothing is recomputed."""
     before = {p: p.stat().st_mtime_ns for p in runs_dir.glob("tiny/*/seed*/record.json")}
-    from pipeline.batch import pending_jobs, Job
+    from pipeline.batch import Job, pending_jobs
     jobs = [Job("tiny", "tiny", v, s, str(runs_dir / "tiny" / v / f"seed{s}")) for v in VARIANTS for s in (0, 1)]
     done, pending = pending_jobs(jobs)
     assert not pending and len(done) == 8

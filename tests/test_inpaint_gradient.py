@@ -3,8 +3,16 @@
 import numpy as np
 import pytest
 
-from inpaint.gradient import (FeatureJob, gradient_channels, gradient_channels_in_rects, gradient_field,
-                              run_feature_jobs, template_radius, templates, vector_from_channels)
+from inpaint.gradient import (
+    FeatureJob,
+    gradient_channels,
+    gradient_channels_in_rects,
+    gradient_field,
+    run_feature_jobs,
+    template_radius,
+    templates,
+    vector_from_channels,
+)
 
 H, W = 48, 64
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from inpaint.plip import (plip_add, plip_scalar_mul, plip_sub, plip_weighted_sum, plip_weighted_sum_iterated)
+from inpaint.plip import plip_add, plip_scalar_mul, plip_sub, plip_weighted_sum, plip_weighted_sum_iterated
 
 GAMMA = 1026.0
 

@@ -158,7 +158,7 @@ def test_online_reset_when_position_uncertainty_explodes():
     flt = MsckfFilter(_matched_config(position_std_threshold=0.02), w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     resets = []
-    for m, pose in iterate(w, flt):
+    for _, pose in iterate(w, flt):
         resets.append(flt.last_stats.online_reset)
         assert pose is not None
     assert any(resets) and flt.n_online_resets == sum(resets)

@@ -15,12 +15,26 @@ from msckf.errors import MsckfInputError
 from msckf.frontend import DepthFrontend, StereoFrontend
 from msckf.frontend_config import FrontendConfig
 from msckf.frontend_depth import DepthReject, depth_to_stereo, rectified_pixels_from_normalised, sample_depth
-from msckf.frontend_geometry import (GyroBuffer, camera_rotation, epipolar_distance, rotate_normalised,
-                                     triangulated_depths)
+from msckf.frontend_geometry import (
+    GyroBuffer,
+    camera_rotation,
+    epipolar_distance,
+    rotate_normalised,
+    triangulated_depths,
+)
 from msckf.frontend_grid import cell_index, top_per_group
 from msckf.types import DepthSource
-from tests.test_msckf_frontend_scene import (Plane, gyro_samples, make_texture, pose_from, rectified_depth, render,
-                                             scene_rig, stereo_pose, world_points)
+from tests.test_msckf_frontend_scene import (
+    Plane,
+    gyro_samples,
+    make_texture,
+    pose_from,
+    rectified_depth,
+    render,
+    scene_rig,
+    stereo_pose,
+    world_points,
+)
 
 RATE = 15.0
 
@@ -197,7 +211,7 @@ def test_tracks_follow_the_known_motion_to_subpixel(wall_seq):
 def test_stereo_matches_satisfy_the_epipolar_constraint_and_give_the_right_depth(wall_seq):
     rig = wall_seq.rig
     fe = StereoFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=0)
-    for obs, dbg in wall_seq.run(fe, frames=3):
+    for obs, dbg in wall_seq.run(fe, frames=3):  # noqa: B007 (the last frame's debug is checked below)
         assert np.all(obs.source == DepthSource.STEREO_MATCH) and np.all(np.isnan(obs.depth_m))
         R, t = rig.T_right_left[:3, :3], rig.T_right_left[:3, 3]
         epi = epipolar_distance(obs.cam0_xy, obs.cam1_xy, R, t) * 0.5 * (rig.right.fx + rig.right.fy)

@@ -68,7 +68,7 @@ class Plane:
     metres_per_texel: float
 
     @classmethod
-    def wall(cls, z: float, texture: np.ndarray, metres_per_texel: float = 0.005) -> "Plane":
+    def wall(cls, z: float, texture: np.ndarray, metres_per_texel: float = 0.005) -> Plane:
         """A fronto-parallel wall at world Z = ``z`` (world axes = camera axes at the identity pose)."""
         return cls(np.array([0.0, 0.0, 1.0]), float(z), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]),
                    texture, metres_per_texel)

@@ -5,8 +5,15 @@ import gtsam
 import numpy as np
 import pytest
 
-from msckf.propagation import (ImuNoise, error_jacobian_F, oc_modify_transition, process_noise, propagate_samples,
-                               rk4_nominal, transition_matrix)
+from msckf.propagation import (
+    ImuNoise,
+    error_jacobian_F,
+    oc_modify_transition,
+    process_noise,
+    propagate_samples,
+    rk4_nominal,
+    transition_matrix,
+)
 from msckf.rotation import so3_exp, so3_log
 from msckf.state import ImuState
 

@@ -12,8 +12,7 @@ from pipeline.calibration import rig_from_camchain
 from pipeline.paths import ROSARIO_CAMCHAIN
 from pipeline.sim.mount import mount_transform
 from pipeline.sim.presets import get_preset
-from pipeline.sim.sensors import (enu_to_geodetic, geodetic_to_enu, rotation_enu_field, simulate_gps,
-                                  simulate_odometry)
+from pipeline.sim.sensors import enu_to_geodetic, geodetic_to_enu, rotation_enu_field, simulate_gps, simulate_odometry
 from pipeline.sim.terrain import Terrain
 from pipeline.sim.trajectory import RobotTrajectory
 

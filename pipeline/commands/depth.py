@@ -11,8 +11,8 @@ import numpy as np
 
 from pipeline.atomic import write_json_atomic
 from pipeline.bag_reader import RosarioSequence
-from pipeline.depth import DepthParams
 from pipeline.data_quality import check_stereo_pairing, sequence_quality, summary_lines
+from pipeline.depth import DepthParams
 from pipeline.depth_cache import depth_stream
 from pipeline.paths import cache_dir
 

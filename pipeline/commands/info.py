@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from pipeline.bag_reader import RosarioSequence
@@ -24,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     seq = RosarioSequence(args.bag, camchain=args.camchain)
     dur = seq.duration_s
-    start = datetime.fromtimestamp(seq.start_ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
+    start = datetime.fromtimestamp(seq.start_ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
     parts = f"{len(seq.parts)} split parts" if len(seq.parts) > 1 else "1 file"
     print(f"bag        {seq.path} ({parts}, {seq.size_bytes / 1e6:.1f} MB)")
     print(f"identity   {seq.identity()}")

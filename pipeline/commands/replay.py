@@ -25,7 +25,6 @@ from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.records import RunRecord
 from eval.trajectory import Trajectory, read_tum
 from pipeline.bag_reader import RosarioSequence
-from pipeline.report_stage import options_for
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
 from pipeline.errors import AgrivioError
@@ -33,6 +32,7 @@ from pipeline.external_tracks import ExternalTrack, evaluate_external, load_exte
 from pipeline.inpaint_stage import InpaintParams
 from pipeline.replay import ReplayFrame, ReplayRun, write_replay
 from pipeline.replay_features import feature_classes
+from pipeline.report_stage import options_for
 from pipeline.run_job import ESTIMATE_NAME, FRAMES_NAME
 
 
@@ -82,7 +82,8 @@ def load_run(run_dir: Path) -> LoadedRun:
     try:
         record = json.loads(rec_path.read_text())
     except FileNotFoundError:
-        raise AgrivioError(f"{rec_path}: no run record here (is this a run folder OUT/<seq>/<variant>/seed<k>?)")
+        raise AgrivioError(f"{rec_path}: no run record here (is this a run folder OUT/<seq>/<variant>/seed<k>?)"
+                           ) from None
     except json.JSONDecodeError as exc:
         raise AgrivioError(f"{rec_path}: not valid JSON ({exc})") from None
     opts = record.get("job") or {}  # the run's inputs (bag, camchain, cache root, method), as run_job recorded them

@@ -231,7 +231,7 @@ class ImuConfig:
     vibration_gyro_rms: float = 0.01
     gravity_mps2: float = 9.7957
 
-    def ideal(self) -> "ImuConfig":
+    def ideal(self) -> ImuConfig:
         """The same IMU without any noise, bias or vibration (for consistency checks)."""
         return dataclasses.replace(self, gyro_noise_density=0.0, acc_noise_density=0.0, gyro_random_walk=0.0,
                                    acc_random_walk=0.0, gyro_bias_std=0.0, acc_bias_std=0.0, vibration_acc_rms=0.0,
@@ -267,7 +267,7 @@ class GpsConfig:
     origin_alt_msl_m: float = 60.0
     geoid_separation_m: float = 14.5
 
-    def ideal(self) -> "GpsConfig":
+    def ideal(self) -> GpsConfig:
         return dataclasses.replace(self, white_m=0.0, correlated_m=0.0, vel_noise_mps=0.0)
 
 
@@ -291,7 +291,7 @@ class OdomConfig:
     yaw_rate_bias: float = 0.006
     yaw_rate_noise: float = 0.01
 
-    def ideal(self) -> "OdomConfig":
+    def ideal(self) -> OdomConfig:
         return dataclasses.replace(self, speed_scale=1.0, slip_std=0.0, turn_slip=0.0, yaw_rate_bias=0.0,
                                    yaw_rate_noise=0.0)
 
@@ -344,7 +344,7 @@ class SimConfig:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "SimConfig":
+    def from_dict(cls, data: dict[str, Any]) -> SimConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
         kwargs: dict[str, Any] = {}
         sub_types = {f.name: f.type for f in fields(cls)}
@@ -359,7 +359,7 @@ class SimConfig:
                 kwargs[key] = value
         return cls(**kwargs)
 
-    def replace(self, **changes: Any) -> "SimConfig":
+    def replace(self, **changes: Any) -> SimConfig:
         """Copy with top-level fields replaced; nested ones by ``section={"key": value}`` dicts or dataclasses."""
         out: dict[str, Any] = {}
         for key, value in changes.items():

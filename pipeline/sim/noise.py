@@ -105,7 +105,7 @@ class MipTexture:
         self._channels = int(np.prod(self.levels[0].shape[2:], dtype=np.int64))
 
     @classmethod
-    def from_image(cls, img: np.ndarray, texel_m: float) -> "MipTexture":
+    def from_image(cls, img: np.ndarray, texel_m: float) -> MipTexture:
         return cls(periodic_pyramid(img), texel_m)
 
     @property

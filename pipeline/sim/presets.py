@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.sim.config import (CameraConfig, FieldConfig, LightingConfig, RouteConfig, SimConfig)
+from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RouteConfig, SimConfig
 
 
 def _preset_01() -> SimConfig:

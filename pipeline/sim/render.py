@@ -35,17 +35,33 @@ import numpy as np
 
 from msckf.camera import PinholeRadtan, StereoRig
 from pipeline.sim.config import CameraConfig, FieldConfig, LightingConfig, RenderConfig
-from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.ground_kernels import atlas_occlusion, soil_footprints, soil_radiance
+from pipeline.sim.lighting import SUN_RADIUS_RAD, Sky
 from pipeline.sim.noise import MipTexture, fbm, sample_level, smooth_noise_1d
 from pipeline.sim.optics_kernels import glare_field, haze_and_glare
-from pipeline.sim.terrain import Terrain
 from pipeline.sim.shade_kernels import poly_radiance, poly_surface_coords, sensor_digitise, sensor_linear
-from pipeline.sim.trace_kernels import (LABEL_CANOPY, LABEL_LEAF, LABEL_SKY, LABEL_SOIL, LABEL_TREES,
-                                        project_polygons, raster_polygons, trace_surfaces)
+from pipeline.sim.terrain import Terrain
 from pipeline.sim.textures import SoilTextures, make_foliage, make_soil, make_trees
-from pipeline.sim.world import (MAT_CANOPY, MAT_LEAF, PRISM1_RANGE_M, SHADOW_NONE, SHADOW_TEXEL_M, SHADOW_TILE_M,
-                                Field, PolySet)
+from pipeline.sim.trace_kernels import (
+    LABEL_CANOPY,
+    LABEL_LEAF,
+    LABEL_SKY,
+    LABEL_SOIL,
+    LABEL_TREES,
+    project_polygons,
+    raster_polygons,
+    trace_surfaces,
+)
+from pipeline.sim.world import (
+    MAT_CANOPY,
+    MAT_LEAF,
+    PRISM1_RANGE_M,
+    SHADOW_NONE,
+    SHADOW_TEXEL_M,
+    SHADOW_TILE_M,
+    Field,
+    PolySet,
+)
 
 LABEL_NAMES = {LABEL_SKY: "sky", LABEL_SOIL: "soil", LABEL_LEAF: "leaf", LABEL_CANOPY: "canopy",
                LABEL_TREES: "trees"}

@@ -51,10 +51,10 @@ from pipeline.sim.export import DepthChunkReader, DepthChunkWriter, EurocWriter
 from pipeline.sim.imu import ImuSimulator
 from pipeline.sim.mount import camera_poses, mount_transform
 from pipeline.sim.presets import get_preset
-from pipeline.sim.terrain import Terrain
-from pipeline.sim.workers import FrameJob, RenderService
 from pipeline.sim.sensors import rotation_enu_field, simulate_gps, simulate_odometry
+from pipeline.sim.terrain import Terrain
 from pipeline.sim.trajectory import RobotTrajectory
+from pipeline.sim.workers import FrameJob, RenderService
 
 SIM_VERSION = 4
 #: Frames between a frame and the first frame whose exposure reacts to it (auto-exposure latency). It is also how

@@ -84,17 +84,17 @@ class PolySet:
         return out
 
     @staticmethod
-    def empty(n_verts: int = 3) -> "PolySet":
+    def empty(n_verts: int = 3) -> PolySet:
         z3 = np.zeros((0, 3))
         return PolySet(np.zeros((0, n_verts, 3)), z3, z3, z3, z3, np.zeros(0), np.zeros((0, 3), np.float32),
                        np.zeros(0, np.uint8), np.zeros(0, np.float32), np.zeros(0))
 
-    def take(self, idx: np.ndarray) -> "PolySet":
+    def take(self, idx: np.ndarray) -> PolySet:
         return PolySet(self.verts[idx], self.origin[idx], self.e1[idx], self.e2[idx], self.normal[idx],
                        self.size[idx], self.albedo[idx], self.material[idx], self.extra[idx], self.ground[idx])
 
     @staticmethod
-    def concat(sets: list["PolySet"]) -> "PolySet":
+    def concat(sets: list[PolySet]) -> PolySet:
         sets = [s for s in sets if len(s)]
         if not sets:
             return PolySet.empty()
