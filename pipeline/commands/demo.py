@@ -8,8 +8,9 @@
 4. benchmarks the inpainting methods, the paper's included, on simulated frames with exact depth (Table 1);
 5. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
 
-The default sizes finish in about 12 minutes on a 2-core machine (measured 12.2 min with the paper's method in the
-VIO loop, on a shared machine, install excluded; 10.3 min from a fresh clone with Telea before), within the 15-minute
+The default sizes finish in about 8 minutes on a 2-core machine (measured 8.1 min with the paper's method in the
+VIO loop after the compiled fusion network, simulation cached, on a shared machine, install excluded; 12.2 min
+before it), within the 15-minute
 budget; ``--full`` simulates 60 s sequences.
 """
 
