@@ -31,12 +31,21 @@ from typing import Any
 
 from eval.errors import EvalInputError
 
-__all__ = ["RunRecord", "config_hash", "RECORD_TYPE", "SCHEMA_VERSION", "DEFAULT_INPAINT_METHOD", "is_run_record"]
+__all__ = ["RunRecord", "variant_display_name", "config_hash",
+           "RECORD_TYPE", "SCHEMA_VERSION", "DEFAULT_INPAINT_METHOD", "is_run_record"]
 
 RECORD_TYPE = "run"
 SCHEMA_VERSION = 1
 #: The inpainting method whose runs form the "after" column (the paper's method); others are labelled ablations.
 DEFAULT_INPAINT_METHOD = "paper"
+
+
+def variant_display_name(variant: str, inpaint_method: str | None) -> str:
+    """A variant as tables show it: ``depth-inpainted`` for the paper's method, ``depth-inpainted[<method>]`` for
+    another inpainting method, else ``variant``."""
+    if inpaint_method and inpaint_method != DEFAULT_INPAINT_METHOD:
+        return f"{variant}[{inpaint_method}]"
+    return variant
 STATUSES = ("ok", "failed")
 
 
@@ -109,11 +118,7 @@ class RunRecord:
     def display_variant(self) -> str:
         """The variant as shown in tables: ``label`` if set; ``depth-inpainted`` for the paper's method;
         ``depth-inpainted[<method>]`` for another inpainting method; else ``variant``."""
-        if self.label:
-            return self.label
-        if self.inpaint_method and self.inpaint_method != DEFAULT_INPAINT_METHOD:
-            return f"{self.variant}[{self.inpaint_method}]"
-        return self.variant
+        return self.label or variant_display_name(self.variant, self.inpaint_method)
 
     def metric(self, name: str) -> float | None:
         """A numeric metric or None (missing, null or not finite). ``ate_rmse_pct_distance`` is derived: ATE RMSE

@@ -21,7 +21,7 @@ from eval.evaluate import Evaluation
 from eval.instrument import instrument_table
 from eval.plots import plot_ate_boxplot, plot_error_over_time, plot_rpe_vs_distance, plot_top_view
 from eval.records import RunRecord
-from eval.rpe_table import rpe_table
+from eval.rpe_table import rpe_items, rpe_table
 from eval.statistics import GroupStats, summarize, variant_sort_key
 from eval.turns import find_turns
 
@@ -230,15 +230,10 @@ def rpe_series(records: Sequence[RunRecord], sequence: str) -> dict[str, tuple[l
     for r in records:
         if r.sequence != sequence or not r.ok:
             continue
-        rpe = r.metrics.get("rpe")
-        if not isinstance(rpe, Mapping):
-            continue
-        for item in rpe.values():
-            if not isinstance(item, Mapping):
-                continue
-            d, v = item.get("delta_m"), item.get("trans_rmse_m")
-            if isinstance(d, (int, float)) and isinstance(v, (int, float)) and math.isfinite(v):
-                per.setdefault(r.display_variant(), {}).setdefault(float(d), []).append(float(v))
+        for d, item in rpe_items(r).items():
+            v = item.get("trans_rmse_m")
+            if isinstance(v, (int, float)) and math.isfinite(v):
+                per.setdefault(r.display_variant(), {}).setdefault(d, []).append(float(v))
     out = {}
     for variant in sorted(per, key=variant_sort_key):
         ds = sorted(per[variant])

@@ -18,10 +18,11 @@ from eval.metrics import DEFAULT_RPE_DISTANCES_M
 from eval.records import RunRecord
 from eval.statistics import variant_sort_key
 
-__all__ = ["rpe_table"]
+__all__ = ["rpe_items", "rpe_table"]
 
 
-def _rpe_items(record: RunRecord) -> dict[float, Mapping]:
+def rpe_items(record: RunRecord) -> dict[float, Mapping]:
+    """The record's RPE entries by segment length (m); entries without a numeric ``delta_m`` are skipped."""
     rpe = record.metrics.get("rpe")
     if not isinstance(rpe, Mapping):
         return {}
@@ -53,7 +54,7 @@ def rpe_table(records: Sequence[RunRecord], distances_m: Sequence[float] = DEFAU
     for r in records:
         if r.ok:
             groups.setdefault((r.sequence, r.display_variant()), []).append(r)
-    present = sorted({d for rs in groups.values() for r in rs for d in _rpe_items(r)} & set(map(float, distances_m)))
+    present = sorted({d for rs in groups.values() for r in rs for d in rpe_items(r)} & set(map(float, distances_m)))
     if not present:
         return None
     header = ["Sequence", "Variant", "runs", "path (m)"] + [f"RPE {d:g} m (m, drift %)" for d in present]
@@ -63,7 +64,7 @@ def rpe_table(records: Sequence[RunRecord], distances_m: Sequence[float] = DEFAU
         path = _finite([r.metrics.get("ref_path_length_m") for r in rs])
         row = [seq, variant, str(len(rs)), f"{path.mean():.0f}" if path.size else "–"]
         for d in present:
-            items = [i for i in (_rpe_items(r).get(d) for r in rs) if i is not None]
+            items = [i for i in (rpe_items(r).get(d) for r in rs) if i is not None]
             row.append(_cell(_finite([i.get("trans_rmse_m") for i in items]),
                              _finite([i.get("drift_mean_pct") for i in items])))
         body.append(row)

@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from eval.errors import EvalInputError
 from eval.evaluate import EvalOptions, Evaluation, evaluate
-from eval.records import RunRecord, is_run_record
+from eval.records import RunRecord, is_run_record, variant_display_name
 from eval.report import Report, build_report
 from eval.trajectory import read_tum
 from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
@@ -186,9 +186,7 @@ class Comparison:
 
 def _after_variant(method: str | None) -> str | None:
     """The displayed variant of ``depth-inpainted`` with ``method`` (as :meth:`RunRecord.display_variant`)."""
-    if method is None:
-        return None
-    return RunRecord("-", "depth-inpainted", 0, inpaint_method=method).display_variant()
+    return None if method is None else variant_display_name("depth-inpainted", method)
 
 
 def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str = DEFAULT_TITLE,
