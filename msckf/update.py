@@ -42,7 +42,8 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2",
-           "chi2_threshold", "schur_information", "whiten_track_drift", "downweight_features", "ekf_update_information",
+           "chi2_threshold", "schur_information", "whiten_track_drift", "whiten_depth_track", "downweight_features",
+           "ekf_update_information",
            "null_space_project", "null_space_project_active", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
 
@@ -323,6 +324,35 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
             r[:, :, c] = rw[:, j * n:(j + 1) * n]
             Hx[:, :, c] = hxw[:, j * n:(j + 1) * n]
             Hf[:, :, c] = hfw[:, j * n:(j + 1) * n]
+    return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
+
+
+def whiten_depth_track(batch: FeatureBatch, correlation: float) -> FeatureBatch:
+    """Whiten the inverse-depth rows (row 4) of each feature for an error shared by the whole track.
+
+    The depth rows arrive whitened to the feature σ (unit variance each, in units of σ). A depth read from a map
+    at a tracked point has an error that is largely the same in every frame (a per-track disparity bias, or the
+    same wrong fill), so the rows of one feature are modelled with the correlation matrix
+    ``C = (1 − c) I + c 11ᵀ`` over its valid depth rows; they are multiplied by ``L⁻¹`` (``L Lᵀ = C``) so that the
+    update and the χ² gate keep R = σ² I. With c → 1, n rows carry the information of one; c = 0 returns ``batch``.
+
+    Args:
+        batch: blocks with 5 rows per observation (``depth_row``); other batches are returned unchanged.
+        correlation: c in [0, 1).
+    """
+    if correlation <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
+        return batch
+    ok = batch.rows[:, :, 4]                                                          # (k, n)
+    if np.count_nonzero(ok.sum(axis=1) > 1) == 0:
+        return batch
+    n = ok.shape[1]
+    both = ok[:, :, None] & ok[:, None, :]
+    C = np.where(both, correlation, 0.0) + np.eye(n) * np.where(ok, 1.0 - correlation, 1.0)[:, :, None]
+    L = np.linalg.cholesky(C)
+    r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
+    r[:, :, 4] = np.linalg.solve(L, batch.r[:, :, 4][..., None])[..., 0]
+    Hx[:, :, 4] = np.linalg.solve(L, batch.Hx[:, :, 4])
+    Hf[:, :, 4] = np.linalg.solve(L, batch.Hf[:, :, 4])
     return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
 
 
