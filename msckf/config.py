@@ -72,7 +72,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_rel_sigma": "depth",
     "depth_gate_sigma": "depth",
     "depth_motion_rel_sigma": "depth",
-    "depth_track_correlation": "depth",
+    "depth_track_bias": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

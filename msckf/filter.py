@@ -437,7 +437,7 @@ class MsckfFilter:
         b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
                                cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
-        b = whiten_depth_track(b, self.config.depth.depth_track_correlation)
+        b = whiten_depth_track(b, self.config.depth.depth_track_bias)
         return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:

@@ -254,12 +254,13 @@ class DepthOptions:
             motion check (``TriangulationParams.mono_translation_threshold``) only if its σ_Z / Z is at most this
             (dimensionless); with ``depth_row`` the triangulation also weights each depth by its σ instead of
             using the virtual cam1 pixel.
-        depth_track_correlation: c in [0, 1): correlation of the depth errors of one track's observations
-            (``msckf.update.whiten_depth_track``). A depth read from a map at a tracked point errs the same way in
-            every frame (a stereo match's disparity error is a per-track constant, measured; a fill is wrong by
-            the same amount wherever the track crosses the same filled surface), so n depth rows of a track are
-            not n independent measurements. The whitened depth rows of a feature get the correlation matrix
-            ``(1 − c) I + c 11ᵀ``; c → 1 makes them worth one reading. 0 (default) keeps them independent.
+        depth_track_bias: β ≥ 0, the variance of an error shared by all depth readings of one track, as a
+            multiple of each reading's own variance (``msckf.update.whiten_depth_track``). A depth read from a
+            map at a tracked point errs the same way in every frame (a stereo match's disparity error is a
+            per-track constant, measured; a fill is wrong by the same amount wherever the track crosses the same
+            filled surface), so n depth rows of a track are not n independent measurements: their whitened
+            covariance is ``I + β 11ᵀ`` and together they carry at most 1/β readings' worth. 0 (default) keeps
+            them independent.
     """
 
     depth_seed: bool = True
@@ -268,13 +269,13 @@ class DepthOptions:
     depth_rel_sigma: float = 0.05
     depth_gate_sigma: float = 0.0
     depth_motion_rel_sigma: float = 0.05
-    depth_track_correlation: float = 0.0
+    depth_track_bias: float = 0.0
 
     def __post_init__(self) -> None:
         _check(self, positive=("depth_inv_sigma",),
                non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma"))
-        if not 0.0 <= self.depth_track_correlation < 1.0:
-            raise _bad(self, "depth_track_correlation", "must be in [0, 1)")
+        if not self.depth_track_bias >= 0.0:
+            raise _bad(self, "depth_track_bias", "must be ≥ 0")
 
 
 @dataclass(frozen=True)

@@ -327,27 +327,29 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
     return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
 
 
-def whiten_depth_track(batch: FeatureBatch, correlation: float) -> FeatureBatch:
+def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
     """Whiten the inverse-depth rows (row 4) of each feature for an error shared by the whole track.
 
     The depth rows arrive whitened to the feature σ (unit variance each, in units of σ). A depth read from a map
     at a tracked point has an error that is largely the same in every frame (a per-track disparity bias, or the
-    same wrong fill), so the rows of one feature are modelled with the correlation matrix
-    ``C = (1 − c) I + c 11ᵀ`` over its valid depth rows; they are multiplied by ``L⁻¹`` (``L Lᵀ = C``) so that the
-    update and the χ² gate keep R = σ² I. With c → 1, n rows carry the information of one; c = 0 returns ``batch``.
+    same wrong fill), so each reading's error is modelled as its own white part plus a part b shared by all
+    readings of the track with var(b) = β × the reading's variance: ``C = I + β 11ᵀ`` over the feature's valid
+    depth rows. The rows are multiplied by ``L⁻¹`` (``L Lᵀ = C``) so that the update and the χ² gate keep
+    R = σ² I. n rows then carry the information of ``n / (1 + nβ)`` readings (at most 1/β); the differences
+    between readings keep their own σ (the model never makes them more precise than one reading).
+    β = 0 returns ``batch``.
 
     Args:
         batch: blocks with 5 rows per observation (``depth_row``); other batches are returned unchanged.
-        correlation: c in [0, 1).
+        bias_ratio: β ≥ 0 (dimensionless).
     """
-    if correlation <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
+    if bias_ratio <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
         return batch
     ok = batch.rows[:, :, 4]                                                          # (k, n)
-    if np.count_nonzero(ok.sum(axis=1) > 1) == 0:
+    if not np.any(ok.sum(axis=1) > 0):
         return batch
     n = ok.shape[1]
-    both = ok[:, :, None] & ok[:, None, :]
-    C = np.where(both, correlation, 0.0) + np.eye(n) * np.where(ok, 1.0 - correlation, 1.0)[:, :, None]
+    C = np.where(ok[:, :, None] & ok[:, None, :], bias_ratio, 0.0) + np.eye(n)
     L = np.linalg.cholesky(C)
     r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
     r[:, :, 4] = np.linalg.solve(L, batch.r[:, :, 4][..., None])[..., 0]
