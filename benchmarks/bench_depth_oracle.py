@@ -17,7 +17,8 @@ ATE RMSE against the simulator's true antenna positions (SE(3), 20 ms, estimate 
 <cache>/benchmarks/bench_depth_oracle.json). One core: BLAS threads pinned.
 
     .venv/bin/python benchmarks/bench_depth_oracle.py [--presets 02 03] [--seeds 0 1 2] [--duration 10]
-        [--methods telea] [--config '{"depth_row": true}'] [--no-sigma] [--no-stereo]
+        [--methods telea] [--config '{"depth_row": true}'] [--no-sigma] [--no-stereo] [--track-noise 0.01 0.03]
+        [--only-rungs depth-raw exact-everywhere ...]
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pipeline.atomic import write_json_atomic  # noqa: E402
+from pipeline.depth_oracle import standard_rungs  # noqa: E402
 from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder, stereo_reference  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
@@ -64,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", default=None, help="MSCKF overrides as a JSON mapping")
     ap.add_argument("--no-sigma", action="store_true", help="do not pass per-pixel depth σ to the filter")
     ap.add_argument("--no-stereo", action="store_true")
+    ap.add_argument("--track-noise", nargs="*", type=float, default=[],
+                    help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
+    ap.add_argument("--only-rungs", nargs="*", default=None, help="run only these rung names (e.g. to save time)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     cache = cache_dir()
@@ -76,7 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
         prep = prepare_oracle(src.sim_dir, cache, args.methods, config, args.seeds, args.max_frames)
-        res = run_ladder(prep, config, methods=args.methods, use_sigma=not args.no_sigma)
+        rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
+        if args.only_rungs is not None:
+            rungs = [r for r in rungs if r.name in args.only_rungs]
+        res = run_ladder(prep, config, rungs=rungs, use_sigma=not args.no_sigma)
         if not args.no_stereo:
             res["stereo"] = stereo_reference(src.sim_dir, config, args.seeds, prep, args.max_frames)
         results[preset] = res

@@ -266,7 +266,8 @@ class Rung:
 
 
 def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
-                   noise_seed: int = 0, exact_sigma_rel: float = 0.002) -> list[Rung]:
+                   noise_seed: int = 0, exact_sigma_rel: float = 0.002,
+                   track_noise_levels: Iterable[float] = ()) -> list[Rung]:
     """The ladder of issue 17: raw; exact at raw-valid pixels; exact everywhere; exact + noise; inpainted.
 
     Exact rungs carry σ_Z = ``exact_sigma_rel``·Z (a small floor, the depth is the truth); noisy rungs carry
@@ -279,7 +280,9 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
 
     Chains checked for monotonicity (ATE must not grow as the depth error falls):
     ``noise``: exact-everywhere ≤ +1 % ≤ +3 % ≤ +10 %; ``value``: exact@raw-valid ≤ depth-raw@tracked-point;
-    ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid.
+    ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid; with ``track_noise_levels``,
+    ``track-noise``: exact + 1 %/track ≤ + 3 %/track ≤ … (one relative error per track, the same in every frame:
+    the error structure of a map read at a tracked point, which the per-frame rungs do not have).
     """
     def raw(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
         fr = log.frames[i]
@@ -311,6 +314,22 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
             return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
         return f
 
+    def per_track(level: float) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
+        # one relative error per track id, the same in every frame (as a stereo match's disparity bias or a
+        # wrong fill is), stated to the filter with the same σ as the per-frame rungs
+        tables: dict[int, np.ndarray] = {}
+
+        def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+            z, _ = exact_all(log, i)
+            if log.seed not in tables:
+                top = max((int(fr.ids.max()) for fr in log.frames if len(fr.ids)), default=0)
+                rng = np.random.default_rng([noise_seed, int(round(level * 1e4)), log.seed, 7])
+                tables[log.seed] = rng.standard_normal(top + 1)
+            e = tables[log.seed][log.frames[i].ids]
+            zn = z * (1.0 + level * e)
+            return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
+        return f
+
     def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
         def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
             fr = log.frames[i]
@@ -321,6 +340,8 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
              Rung("exact@raw-valid", exact_raw, "value", 0), Rung("exact-everywhere", exact_all, "noise", 0)]
     for k, lv in enumerate(noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
+    for k, lv in enumerate(track_noise_levels):
+        rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:
         rungs.append(Rung(f"inpainted[{m}]", inpainted(m)))
     return rungs

@@ -102,3 +102,24 @@ def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_
     # and the whole ladder runs on it (values are not checked here: 0.8 s of motion is too short)
     res = run_ladder(prep, config)
     assert set(res) >= {"depth-raw", "exact-everywhere", "exact+10%"} and not res["depth-raw"]["failed"]
+
+
+def test_per_track_noise_rung_gives_each_track_one_error_in_every_frame():
+    """The ``exact+L%/track`` rungs perturb the tracked point's true depth by one relative error per track id
+    (the same in every frame that sees it), unlike the per-frame rungs; σ is stated as for those."""
+    from pipeline.depth_oracle import standard_rungs
+
+    n, ids = 6, np.array([3, 8, 11], np.int64)
+    frames = [TrackedFrame(0.1 * k, k, ids, np.zeros((3, 2)), np.full(3, k + 1, np.int32), np.zeros((3, 2)))
+              for k in range(n)]
+    truth = [np.array([2.0, 4.0, 8.0]) * (1 + 0.01 * k) for k in range(n)]
+    log = TrackLog(frames, np.zeros((0, 7)), seed=1, truth=truth, truth_source=[np.ones(3, np.uint8)] * n)
+    rungs = {r.name: r for r in standard_rungs(track_noise_levels=(0.03,))}
+    track, frame = rungs["exact+3%/track"], rungs["exact+3%"]
+    assert track.chain == "track-noise"
+    ratios = np.stack([track.depth(log, k)[0] / truth[k] for k in range(n)])
+    np.testing.assert_allclose(ratios, np.broadcast_to(ratios[0], ratios.shape), rtol=1e-12)
+    assert len(np.unique(np.round(ratios[0], 12))) == 3 and np.all(np.abs(ratios[0] - 1) < 0.2)
+    per_frame = np.stack([frame.depth(log, k)[0] / truth[k] for k in range(n)])
+    assert np.ptp(per_frame, axis=0).min() > 1e-6
+    np.testing.assert_allclose(track.depth(log, 0)[1], frame.depth(log, 0)[1])
