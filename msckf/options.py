@@ -273,9 +273,7 @@ class DepthOptions:
 
     def __post_init__(self) -> None:
         _check(self, positive=("depth_inv_sigma",),
-               non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma"))
-        if not self.depth_track_bias >= 0.0:
-            raise _bad(self, "depth_track_bias", "must be ≥ 0")
+               non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma", "depth_track_bias"))
 
 
 @dataclass(frozen=True)

@@ -346,7 +346,7 @@ def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
     if bias_ratio <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
         return batch
     ok = batch.rows[:, :, 4]                                                          # (k, n)
-    if not np.any(ok.sum(axis=1) > 0):
+    if not ok.any():
         return batch
     n = ok.shape[1]
     C = np.where(ok[:, :, None] & ok[:, None, :], bias_ratio, 0.0) + np.eye(n)

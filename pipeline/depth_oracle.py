@@ -303,15 +303,18 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         z = np.where(log.truth_source[i] == 1, log.truth[i], np.nan)
         return z, exact_sigma_rel * z
 
+    def perturbed(z: np.ndarray, level: float, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``z × (1 + level·e)`` (NaN where not positive) and its stated σ."""
+        zn = z * (1.0 + level * e)
+        return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
+
     def noisy(level: float) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
         def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
             z, _ = exact_all(log, i)
             fr = log.frames[i]
             # one draw per (noise seed, level, track seed, frame): reproducible, independent across seeds
             rng = np.random.default_rng([noise_seed, int(round(level * 1e4)), log.seed, fr.index])
-            e = rng.standard_normal(len(z))
-            zn = z * (1.0 + level * e)
-            return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
+            return perturbed(z, level, rng.standard_normal(len(z)))
         return f
 
     def per_track(level: float) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
@@ -325,9 +328,7 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
                 top = max((int(fr.ids.max()) for fr in log.frames if len(fr.ids)), default=0)
                 rng = np.random.default_rng([noise_seed, int(round(level * 1e4)), log.seed, 7])
                 tables[log.seed] = rng.standard_normal(top + 1)
-            e = tables[log.seed][log.frames[i].ids]
-            zn = z * (1.0 + level * e)
-            return np.where(zn > 0, zn, np.nan), np.sqrt(exact_sigma_rel ** 2 + level ** 2) * z
+            return perturbed(z, level, tables[log.seed][log.frames[i].ids])
         return f
 
     def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
