@@ -279,7 +279,9 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     features of ``exact@raw-valid``, so that those two differ in depth values only.
 
     Chains checked for monotonicity (ATE must not grow as the depth error falls):
-    ``noise``: exact-everywhere ≤ +1 % ≤ +3 % ≤ +10 %; ``value``: exact@raw-valid ≤ depth-raw@tracked-point;
+    ``noise``: exact-everywhere ≤ +1 % ≤ +3 % ≤ +10 % ≤ ``mono`` (no depth at any feature: a depth stated to the
+    filter with its true σ may help little, but must not make the VIO worse than having none);
+    ``value``: exact@raw-valid ≤ depth-raw@tracked-point;
     ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid; with ``track_noise_levels``,
     ``track-noise``: exact + 1 %/track ≤ + 3 %/track ≤ … (one relative error per track, the same in every frame:
     the error structure of a map read at a tracked point, which the per-frame rungs do not have).
@@ -331,16 +333,22 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
             return perturbed(z, level, tables[log.seed][log.frames[i].ids])
         return f
 
+    def no_depth(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        return np.full(len(log.frames[i].ids), np.nan), None
+
     def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
         def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
             fr = log.frames[i]
             return fr.z_rect[name], fr.sigma_rect.get(name)
         return f
 
+    noise_levels = tuple(noise_levels)
     rungs = [Rung("depth-raw", raw), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
              Rung("exact@raw-valid", exact_raw, "value", 0), Rung("exact-everywhere", exact_all, "noise", 0)]
     for k, lv in enumerate(noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
+    # no depth at all: the σ → ∞ end of the noise chain (a depth stated with its true σ must not hurt)
+    rungs.append(Rung("mono", no_depth, "noise", len(noise_levels) + 1))
     for k, lv in enumerate(track_noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:
