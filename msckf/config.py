@@ -64,6 +64,7 @@ FLAT_KEYS: dict[str, str] = {
     "track_drift_psd": "update",
     "max_update_rows": "update",
     "update_method": "update",
+    "depth_fallback": "update",
     "observability_constrained": "propagation",
     "propagate_to_image_time": "propagation",
     "depth_seed": "depth",

@@ -54,6 +54,8 @@ class FrameStats:
     ``over_budget``: the back end took longer than one image period (1 / ``config.health.frame_rate``), as
     msckf_vio warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature
     that was gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
+    ``n_depth_fallback``: features rejected with their depth-map observations and accepted without them
+    (``update.depth_fallback``); they are not counted in ``n_gated_out``.
     """
 
     stamp_s: float = 0.0
@@ -64,6 +66,7 @@ class FrameStats:
     n_lost_used: int = 0
     n_pruned_used: int = 0
     n_gated_out: int = 0
+    n_depth_fallback: int = 0
     n_triangulation_failed: int = 0
     n_clones: int = 0
     n_map: int = 0
@@ -345,7 +348,8 @@ class MsckfFilter:
         valid = np.take_along_axis(mask, cols, axis=1)
         return cols, valid
 
-    def _motion_ok(self, rows: np.ndarray, cols: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    def _motion_ok(self, rows: np.ndarray, cols: np.ndarray, valid: np.ndarray,
+                   without_depth: bool = False) -> np.ndarray:
         """S-MSCKF ``checkMotion`` (vectorised) with the mono threshold for tracks without any cam1."""
         order = self._order()
         fs, cl = self.features, self.clones
@@ -371,20 +375,25 @@ class MsckfFilter:
             rel = inverse_depth_sigma(depth, fs.depth_sigma[rr, slots], dep.depth_inv_sigma,
                                       dep.depth_rel_sigma) * depth
             has_cam1 = np.where(dm, valid & (rel <= dep.depth_motion_rel_sigma), has_cam1)
+        if without_depth:
+            has_cam1 &= fs.src[rr, slots] != DepthSource.DEPTH_MAP
         any_cam1 = np.any(has_cam1, axis=1)
         tri = self.tri_params
         thr = np.where(any_cam1, tri.feature_translation_threshold, tri.mono_translation_threshold)
         return np.linalg.norm(orth, axis=1) > thr
 
-    def _triangulate(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
-        """Initialise the positions of features (rows) from all their observations; returns ok (bool)."""
+    def _triangulate(self, rows: np.ndarray, st: FrameStats, without_depth: bool = False) -> np.ndarray:
+        """Initialise the positions of features (rows) from all their observations; returns ok (bool).
+
+        ``without_depth``: depth-map observations count with their cam0 pixel only (``depth_fallback``).
+        """
         if len(rows) == 0:
             return np.zeros(0, dtype=bool)
         fs, cl = self.features, self.clones
         order = self._order()
         mask = fs.has[rows][:, order]
         cols, valid = self._compact(mask)
-        ok = self._motion_ok(rows, cols, valid)
+        ok = self._motion_ok(rows, cols, valid, without_depth)
         idx = np.flatnonzero(ok)
         if len(idx):
             r_i = rows[idx]
@@ -393,7 +402,11 @@ class MsckfFilter:
             obs = fs.obs[r_i[:, None], slots]
             depth_inv = depth_w = None
             dep = self.config.depth
-            if dep.depth_row:
+            if without_depth:
+                dm = fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP
+                obs = obs.copy()
+                obs[..., 2:4] = np.where(dm[..., None], np.nan, obs[..., 2:4])
+            elif dep.depth_row:
                 # Depth enters as a σ-weighted inverse-depth residual, not as a virtual right-camera pixel.
                 dm = (fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP) & v_i
                 obs = obs.copy()
@@ -410,7 +423,7 @@ class MsckfFilter:
             R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], obs, v_i, self.R_c1_c0,
                                                     self.t_c1_c0)
             a_slot = slots[np.arange(len(idx)), anchor]
-            a_depth = fs.depth[r_i, a_slot] if dep.depth_seed else None
+            a_depth = fs.depth[r_i, a_slot] if dep.depth_seed and not without_depth else None
             x0 = initial_guess(R, t, z, vv, 2 * anchor, a_depth)
             p_a, good, _ = triangulate_batch(R, t, z, vv, x0, self.tri_params, depth_inv, depth_w)
             p_w = np.einsum("kij,kj->ki", cl.R_w_c[a_slot], p_a) + cl.p[a_slot]
@@ -425,17 +438,27 @@ class MsckfFilter:
         c = self.config
         return MeasurementSpec.from_options(self.R_c1_c0, self.t_c1_c0, self.g_w, c.update, c.depth, c.propagation)
 
-    def _batch(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec) -> FeatureBatch:
-        """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order)."""
+    def _batch(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec,
+               without_depth: bool = False) -> FeatureBatch:
+        """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order).
+
+        ``without_depth``: the depth-map observations enter with their cam0 pixel only (no virtual cam1, no
+        inverse-depth row), as if they were monocular.
+        """
         fs, cl = self.features, self.clones
         order = self._order()
         cols, valid = self._compact(clone_mask)
         slots = order[cols]
         rr = rows[:, None]
-        use_depth_row = (fs.src[rr, slots] == DepthSource.DEPTH_MAP) if spec.depth_row \
-            else np.zeros(slots.shape, dtype=bool)
+        from_map = fs.src[rr, slots] == DepthSource.DEPTH_MAP
+        use_depth_row = from_map if spec.depth_row else np.zeros(slots.shape, dtype=bool)
+        obs, depth = fs.obs[rr, slots], fs.depth[rr, slots]
+        if without_depth:
+            obs = obs.copy()
+            obs[..., 2:4] = np.where(from_map[..., None], np.nan, obs[..., 2:4])
+            depth = np.where(from_map, np.nan, depth)
         b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
-                               cl.p_null[slots], fs.obs[rr, slots], fs.depth[rr, slots], use_depth_row, valid,
+                               cl.p_null[slots], obs, depth, use_depth_row, valid,
                                cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
         b = whiten_depth_track(b, self.config.depth.depth_track_bias)
         return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
@@ -458,7 +481,9 @@ class MsckfFilter:
             ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
             st.gate_gamma.append(gamma)
             st.gate_dof.append(np.asarray(b.n_rows - 3))
-            st.n_gated_out += int(np.count_nonzero(~ok))
+            n_back = self._regate_without_depth(rows[grp], clone_mask[grp], obs_dof[grp], ok, spec, accepted,
+                                                acc_rows_count, st) if c.depth_fallback else 0
+            st.n_gated_out += int(np.count_nonzero(~ok)) - n_back
             if np.any(ok):
                 kept = b.subset(ok)
                 if c.robust_k > 0:
@@ -497,6 +522,39 @@ class MsckfFilter:
         self.P = P_new
         inject_correction(self._initialised(), self.clones, dx)
         return used
+
+    def _regate_without_depth(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, ok: np.ndarray,
+                              spec: MeasurementSpec, accepted: list[FeatureBatch], acc_rows_count: list[np.ndarray],
+                              st: FrameStats) -> int:
+        """Gate the rejected features that have depth-map observations again without them (``depth_fallback``).
+
+        ``ok``: (k,) the first gate's verdict. Those that pass now are appended to ``accepted`` /
+        ``acc_rows_count`` (depth-free blocks) and counted in ``st.n_depth_fallback``; returns how many.
+        """
+        c = self.config.update
+        order = self._order()
+        cols, valid = self._compact(clone_mask)
+        has_map = np.any((self.features.src[rows[:, None], order[cols]] == DepthSource.DEPTH_MAP) & valid, axis=1)
+        retry = np.flatnonzero(~ok & has_map)
+        if len(retry) == 0:
+            return 0
+        # the position was triangulated with the rejected depth: triangulate it again from the pixels alone
+        retry = retry[self._triangulate(rows[retry], FrameStats(), without_depth=True)]
+        if len(retry) == 0:
+            return 0
+        b = self._batch(rows[retry], clone_mask[retry], spec, without_depth=True)
+        gamma = gating_chi2(self.P, b, c.feature_noise)
+        dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[retry]
+        ok2 = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
+        if np.any(ok2):
+            kept = b.subset(ok2)
+            if c.robust_k > 0:
+                kept = downweight_features(kept, gamma[ok2] / np.maximum(kept.n_rows - 3, 1), c.robust_k)
+            accepted.append(kept)
+            acc_rows_count.append(b.n_rows[ok2] - 3)
+        n_back = int(np.count_nonzero(ok2))
+        st.n_depth_fallback += n_back
+        return n_back
 
     @staticmethod
     def _pad_batch(b: FeatureBatch, n: int, dummy: int) -> FeatureBatch:

@@ -209,6 +209,12 @@ class UpdateOptions:
             Measured on the simulated Rosario-like sequences: with depth-map observations the symmetric update
             lost positive definiteness within 5–9 s on 14 of 20 depth runs ("negative variance"), the Joseph
             form on none; hence ``qr`` by default.
+        depth_fallback: a feature that fails the χ² gate but carries depth-map observations is gated again
+            without them (their virtual-cam1 and inverse-depth rows dropped, its cam0 rows kept, its position
+            triangulated again from those pixels; a feature whose pixels alone do not triangulate stays
+            rejected), so that a bad
+            filled depth costs that depth, not the whole track. False (default) rejects the whole feature.
+            No effect on the ``stereo`` front end (no depth-map observations).
     """
 
     feature_noise: float = 0.007
@@ -218,6 +224,7 @@ class UpdateOptions:
     track_drift_psd: float = 0.0
     max_update_rows: int = 0
     update_method: str = "qr"
+    depth_fallback: bool = False
 
     def __post_init__(self) -> None:
         _check(self, positive=("feature_noise",), non_negative=("max_update_rows", "robust_k", "track_drift_psd"))

@@ -368,7 +368,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
     qs: list[np.ndarray] = []
     imu = log.imu
     k = 0
-    n_depth = n_feat = n_gated = 0
+    n_depth = n_feat = n_gated = n_fallback = 0
     g_ratio: list[np.ndarray] = []
     failure = None
     try:
@@ -393,6 +393,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
             n_depth += int(has.sum())
             n_feat += len(has)
             n_gated += filt.last_stats.n_gated_out
+            n_fallback += filt.last_stats.n_depth_fallback
             g_ratio.append(filt.last_stats.gamma_per_dof())
             if pose is not None:
                 stamps.append(pose.stamp_s)
@@ -404,6 +405,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
                       np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
     gr = np.concatenate(g_ratio) if g_ratio else np.zeros(0)
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
+                           "depth_fallback": n_fallback,
                            "gamma_per_dof_median": float(np.median(gr)) if len(gr) else float("nan"),
                            "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan")}
 

@@ -128,6 +128,7 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
         out[rung.name] = {"ate": ate, "failed": failed, "chain": rung.chain, "order": rung.order,
                           "depth_fraction": float(np.mean([s["depth_fraction"] for s in stats.values()])),
                           "gated_out": int(sum(s["gated_out"] for s in stats.values())),
+                          "depth_fallback": int(sum(s["depth_fallback"] for s in stats.values())),
                           "gamma_per_dof_median": float(np.nanmedian([s["gamma_per_dof_median"]
                                                                       for s in stats.values()]))}
     return out
