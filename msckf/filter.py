@@ -330,6 +330,9 @@ class MsckfFilter:
             fs.depth_sigma[rows, slot] = np.where(np.isfinite(depth) & np.isfinite(sig) & (sig > 0), sig, np.nan)
         else:
             fs.depth_sigma[rows, slot] = np.nan
+        measured = np.zeros(len(depth), dtype=bool) if obs.depth_measured is None \
+            else np.asarray(obs.depth_measured, dtype=bool).reshape(-1)
+        fs.depth_filled[rows, slot] = np.isfinite(depth) & ~measured
         fs.src[rows, slot] = src
         fs.has[rows, slot] = True
         st.n_new = int(np.count_nonzero(new))
@@ -376,7 +379,7 @@ class MsckfFilter:
                                       dep.depth_rel_sigma) * depth
             has_cam1 = np.where(dm, valid & (rel <= dep.depth_motion_rel_sigma), has_cam1)
         if without_depth:
-            has_cam1 &= fs.src[rr, slots] != DepthSource.DEPTH_MAP
+            has_cam1 &= ~((fs.src[rr, slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[rr, slots])
         any_cam1 = np.any(has_cam1, axis=1)
         tri = self.tri_params
         thr = np.where(any_cam1, tri.feature_translation_threshold, tri.mono_translation_threshold)
@@ -385,7 +388,8 @@ class MsckfFilter:
     def _triangulate(self, rows: np.ndarray, st: FrameStats, without_depth: bool = False) -> np.ndarray:
         """Initialise the positions of features (rows) from all their observations; returns ok (bool).
 
-        ``without_depth``: depth-map observations count with their cam0 pixel only (``depth_fallback``).
+        ``without_depth``: depth-map observations with a filled depth count with their cam0 pixel only
+        (``depth_fallback``).
         """
         if len(rows) == 0:
             return np.zeros(0, dtype=bool)
@@ -403,7 +407,7 @@ class MsckfFilter:
             depth_inv = depth_w = None
             dep = self.config.depth
             if without_depth:
-                dm = fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP
+                dm = (fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[r_i[:, None], slots]
                 obs = obs.copy()
                 obs[..., 2:4] = np.where(dm[..., None], np.nan, obs[..., 2:4])
             elif dep.depth_row:
@@ -442,8 +446,9 @@ class MsckfFilter:
                without_depth: bool = False) -> FeatureBatch:
         """Measurement blocks for features ``rows`` over the clones of ``clone_mask`` ((k, C), time order).
 
-        ``without_depth``: the depth-map observations enter with their cam0 pixel only (no virtual cam1, no
-        inverse-depth row), as if they were monocular.
+        ``without_depth``: the depth-map observations whose depth is filled (or not known to be measured:
+        ``FeatureStore.depth_filled``) enter with their cam0 pixel only (no virtual cam1, no inverse-depth row),
+        as if they were monocular.
         """
         fs, cl = self.features, self.clones
         order = self._order()
@@ -454,9 +459,10 @@ class MsckfFilter:
         use_depth_row = from_map if spec.depth_row else np.zeros(slots.shape, dtype=bool)
         obs, depth = fs.obs[rr, slots], fs.depth[rr, slots]
         if without_depth:
+            drop = from_map & fs.depth_filled[rr, slots]
             obs = obs.copy()
-            obs[..., 2:4] = np.where(from_map[..., None], np.nan, obs[..., 2:4])
-            depth = np.where(from_map, np.nan, depth)
+            obs[..., 2:4] = np.where(drop[..., None], np.nan, obs[..., 2:4])
+            depth = np.where(drop, np.nan, depth)
         b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                cl.p_null[slots], obs, depth, use_depth_row, valid,
                                cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
@@ -526,7 +532,7 @@ class MsckfFilter:
     def _regate_without_depth(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, ok: np.ndarray,
                               spec: MeasurementSpec, accepted: list[FeatureBatch], acc_rows_count: list[np.ndarray],
                               st: FrameStats) -> int:
-        """Gate the rejected features that have depth-map observations again without them (``depth_fallback``).
+        """Gate the rejected features that have filled depths again without them (``depth_fallback``).
 
         ``ok``: (k,) the first gate's verdict. Those that pass now are appended to ``accepted`` /
         ``acc_rows_count`` (depth-free blocks) and counted in ``st.n_depth_fallback``; returns how many.
@@ -534,8 +540,11 @@ class MsckfFilter:
         c = self.config.update
         order = self._order()
         cols, valid = self._compact(clone_mask)
-        has_map = np.any((self.features.src[rows[:, None], order[cols]] == DepthSource.DEPTH_MAP) & valid, axis=1)
-        retry = np.flatnonzero(~ok & has_map)
+        sl = order[cols]
+        fs = self.features
+        has_fill = np.any((fs.src[rows[:, None], sl] == DepthSource.DEPTH_MAP) & fs.depth_filled[rows[:, None], sl]
+                          & valid, axis=1)
+        retry = np.flatnonzero(~ok & has_fill)
         if len(retry) == 0:
             return 0
         # the position was triangulated with the rejected depth: triangulate it again from the pixels alone
@@ -613,6 +622,7 @@ class MsckfFilter:
         fs.obs[:, rm] = np.nan
         fs.depth[:, rm] = np.nan
         fs.depth_sigma[:, rm] = np.nan
+        fs.depth_filled[:, rm] = False
         keep = np.ones(self.P.shape[0], dtype=bool)
         for p in rm_pos:
             keep[IMU_DIM + 6 * p: IMU_DIM + 6 * p + 6] = False

@@ -511,7 +511,8 @@ class DepthFrontend(_TrackerBase):
             depth_sigma: optional (H, W) float σ of ``depth_m`` in metres (per pixel; read at the feature's nearest
                 rectified pixel and carried to cam0 Z as ``depth_sigma_m``); None: no stated σ.
             depth_measured: optional (H, W) bool, True where ``depth_m`` is a direct measurement (not a fill);
-                read at the same pixel, reported in ``last_debug.depth_measured`` only.
+                read at the same pixel, passed on per feature (``FeatureObservations.depth_measured``, for the
+                filter's ``update.depth_fallback``) and in ``last_debug.depth_measured``.
         Returns:
             The frame's features: ``DEPTH_MAP`` (with ``cam1_xy`` and ``depth_m``) or ``MONO``.
         """
@@ -573,7 +574,7 @@ class DepthFrontend(_TrackerBase):
                 raise MsckfInputError(f"depth measured mask must be a bool {shape[1]}x{shape[0]} array")
             measured = has & nearest_pixel_values(depth_measured.astype(bool), rect).astype(bool)
         obs = FeatureObservations(float(stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
-                                  tracks.life.astype(np.int32), sigma0)
+                                  tracks.life.astype(np.int32), sigma0, measured)
         counts["published"] = len(tracks)
         counts["with_depth"] = int(has.sum())
         self.last_debug = FrontendDebug(float(stamp_s), obs.ids, tracks.px0.copy(), px1, obs.track_length, source,

@@ -209,11 +209,13 @@ class UpdateOptions:
             Measured on the simulated Rosario-like sequences: with depth-map observations the symmetric update
             lost positive definiteness within 5–9 s on 14 of 20 depth runs ("negative variance"), the Joseph
             form on none; hence ``qr`` by default.
-        depth_fallback: a feature that fails the χ² gate but carries depth-map observations is gated again
-            without them (their virtual-cam1 and inverse-depth rows dropped, its cam0 rows kept, its position
+        depth_fallback: a feature that fails the χ² gate but carries filled depths (``FeatureObservations.
+            depth_measured`` False, or unknown) is gated again without them (the virtual-cam1 and inverse-depth
+            rows of those observations dropped, their cam0 rows and any measured depths kept, its position
             triangulated again from those pixels; a feature whose pixels alone do not triangulate stays
             rejected), so that a bad
-            filled depth costs that depth, not the whole track. False (default) rejects the whole feature.
+            filled depth costs that depth, not the whole track; a feature whose measured depth fails is still
+            rejected. False (default) rejects the whole feature.
             No effect on the ``stereo`` front end (no depth-map observations).
     """
 

@@ -120,7 +120,8 @@ class FeatureStore:
 
     Per row: the track id, ``alive``, ``obs`` (capacity_slots, 4) normalised ``(u0, v0, u1, v1)`` with NaN
     cam1 where monocular, ``depth`` (slots,) measured Z in cam0 (NaN where none), ``depth_sigma`` (slots,) its σ in
-    metres (NaN: the configured depth noise model applies), ``has`` (slots,) bool,
+    metres (NaN: the configured depth noise model applies), ``depth_filled`` (slots,) bool, True where that depth
+    is not known to be a direct measurement (a fill, or unknown), ``has`` (slots,) bool,
     ``src`` (slots,) :class:`~msckf.types.DepthSource` of each observation,
     ``initialized`` and the triangulated world position ``pos`` (m).
     Active ids are kept sorted (``_ids_sorted`` / ``_rows_sorted``) for vectorised id → row look-ups.
@@ -140,6 +141,7 @@ class FeatureStore:
         self.obs = np.full((capacity, self.n_slots, 4), np.nan)
         self.depth = np.full((capacity, self.n_slots), np.nan)
         self.depth_sigma = np.full((capacity, self.n_slots), np.nan)
+        self.depth_filled = np.zeros((capacity, self.n_slots), dtype=bool)
         self.has = np.zeros((capacity, self.n_slots), dtype=bool)
         self.src = np.zeros((capacity, self.n_slots), dtype=np.uint8)
         self.initialized = np.zeros(capacity, dtype=bool)
@@ -148,11 +150,11 @@ class FeatureStore:
     def _grow(self, need: int) -> None:
         old = self.capacity
         new = max(2 * old, old + need)
-        arrays = (self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.has, self.src,
-                  self.initialized, self.pos)
+        arrays = (self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled, self.has,
+                  self.src, self.initialized, self.pos)
         self._alloc(new)
-        for dst, src in zip((self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.has, self.src,
-                             self.initialized, self.pos), arrays):
+        for dst, src in zip((self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled,
+                             self.has, self.src, self.initialized, self.pos), arrays):
             dst[:old] = src
         self._free = list(range(new - 1, old - 1, -1)) + self._free
 
@@ -182,6 +184,7 @@ class FeatureStore:
         self.obs[rows] = np.nan
         self.depth[rows] = np.nan
         self.depth_sigma[rows] = np.nan
+        self.depth_filled[rows] = False
         self.has[rows] = False
         self.initialized[rows] = False
         all_ids = np.concatenate([self._ids_sorted, ids])

@@ -35,6 +35,9 @@ class FeatureObservations:
         depth_sigma_m: (N,) σ of ``depth_m`` in metres (cam0 Z), or None. NaN entries (or None) mean "no stated
             σ": the filter then uses its configured depth noise model (``MsckfConfig.depth``:
             :class:`~msckf.options.DepthOptions`).
+        depth_measured: (N,) bool, True where ``depth_m`` is a direct measurement, False where it was filled
+            (inpainted), or None (unknown: every depth counts as possibly filled). Used by
+            ``update.depth_fallback``.
     """
 
     stamp_s: float
@@ -45,6 +48,7 @@ class FeatureObservations:
     source: np.ndarray
     track_length: np.ndarray
     depth_sigma_m: np.ndarray | None = None
+    depth_measured: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.ids)
@@ -52,6 +56,8 @@ class FeatureObservations:
                   ("track_length", (n,))]
         if self.depth_sigma_m is not None:
             checks.append(("depth_sigma_m", (n,)))
+        if self.depth_measured is not None:
+            checks.append(("depth_measured", (n,)))
         for name, shape in checks:
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"FeatureObservations.{name} must have shape {shape}, "

@@ -91,8 +91,9 @@ class Msckf:
             depth_valid: bool H×W; default: finite and positive depth.
             depth_sigma: float H×W σ of ``depth`` in metres (variant ``depth``), or None (the filter's configured
                 depth noise model applies).
-            depth_measured: bool H×W, True where ``depth`` is a direct measurement rather than a fill; only
-                reported per feature in ``last_debug.depth_measured`` (the filter sees the σ), or None.
+            depth_measured: bool H×W, True where ``depth`` is a direct measurement rather than a fill, or
+                None; passed per feature to the filter (its ``update.depth_fallback`` re-gates a rejected feature
+                without its filled depths) and reported in ``last_debug.depth_measured``.
         Raises:
             MsckfInputError: missing or malformed images for the variant.
             FilterDivergedError: the filter diverged (the run failed; the reason is in the exception).

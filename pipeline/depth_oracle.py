@@ -257,12 +257,15 @@ class Rung:
 
     ``depth(log, frame_index) -> (z_rect (N,), sigma_rect (N,) or None)``; NaN z = the feature has no depth.
     ``order``: the rung's depth-error rank within its chain (lower = more accurate), for the monotonicity check.
+    ``measured``: ``(log, frame_index) -> (N,) bool`` True where the rung's depth is a direct (raw SGBM)
+    measurement, as the pipeline tells the filter (``FeatureObservations.depth_measured``); None: unknown.
     """
 
     name: str
     depth: Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]
     chain: str = ""
     order: int = 0
+    measured: Callable[[TrackLog, int], np.ndarray] | None = None
 
 
 def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
@@ -336,6 +339,9 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     def no_depth(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
         return np.full(len(log.frames[i].ids), np.nan), None
 
+    def raw_measured(log: TrackLog, i: int) -> np.ndarray:
+        return np.isfinite(log.frames[i].z_rect["raw"])
+
     def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
         def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
             fr = log.frames[i]
@@ -343,7 +349,7 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         return f
 
     noise_levels = tuple(noise_levels)
-    rungs = [Rung("depth-raw", raw), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
+    rungs = [Rung("depth-raw", raw, measured=raw_measured), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
              Rung("exact@raw-valid", exact_raw, "value", 0), Rung("exact-everywhere", exact_all, "noise", 0)]
     for k, lv in enumerate(noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
@@ -352,7 +358,7 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     for k, lv in enumerate(track_noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:
-        rungs.append(Rung(f"inpainted[{m}]", inpainted(m)))
+        rungs.append(Rung(f"inpainted[{m}]", inpainted(m), measured=raw_measured))
     return rungs
 
 
@@ -388,7 +394,8 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
             if use_sigma and sig_rect is not None:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     sig0 = np.where(has, np.asarray(sig_rect, dtype=np.float64) * z0 / z_rect, np.nan)
-            obs = _observations(fr, xy1, z0, src, sig0)
+            measured = None if rung.measured is None else has & np.asarray(rung.measured(log, i), dtype=bool)
+            obs = _observations(fr, xy1, z0, src, sig0, measured)
             pose = filt.feed_features(obs)
             n_depth += int(has.sum())
             n_feat += len(has)
@@ -411,8 +418,8 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
 
 
 def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,
-                  sigma0: np.ndarray | None) -> FeatureObservations:
-    return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, sigma0)
+                  sigma0: np.ndarray | None, measured: np.ndarray | None = None) -> FeatureObservations:
+    return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, sigma0, measured)
 
 
 def evaluate_rung(traj: Trajectory, gt_path: str, lever_arm_imu: Any) -> float:

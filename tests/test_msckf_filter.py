@@ -246,3 +246,20 @@ def test_depth_fallback_keeps_the_pixels_of_a_feature_whose_depth_fails_the_gate
     assert fb1 > 0.4 * out0 and out1 < 0.6 * out0       # … and half of them come back without their depth
     assert fb1 + out1 <= out0 + 10                      # the fallback re-gates rejected features only
     assert err1 < 0.15 and err1 <= err0 * 1.05, res     # pixels used that were lost: not worse
+
+
+def test_depth_fallback_leaves_measured_depths_alone():
+    """Only filled depths are dropped on a retry: a feature whose biased depth is flagged as *measured* stays
+    rejected (the fallback never turns a failed measurement into a mono feature)."""
+    from dataclasses import replace
+    w = _with_biased_depth(make_world(seed=5, duration=3.0, max_features=150, depth_mode=True,
+                                      depth_rel_sigma=0.01), every=4, factor=1.6)
+    w = replace(w, frames=[replace(f, depth_measured=np.isfinite(f.depth_m)) for f in w.frames])
+    poses = {}
+    for fallback in (False, True):
+        cfg = _matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
+        flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        outs = [np.r_[p.p_world, p.cov_diag] for _, p in iterate(w, flt) if p is not None]
+        poses[fallback] = np.array(outs)
+    assert np.array_equal(poses[False], poses[True])
