@@ -8,6 +8,7 @@ floor), with the pipeline's alignment (SE(3), 20 ms, estimate at the antenna).
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +37,12 @@ __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference",
 
 def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                    seeds: Iterable[int], max_frames: int | None = None,
-                   sigma_model: DepthSigmaModel | None = None) -> dict[str, Any]:
+                   sigma_model: DepthSigmaModel | None = None, far_open: bool = True) -> dict[str, Any]:
     """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
 
-    Depth and inpainted caches are computed when missing (the pipeline's own stages and caches).
+    Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
+    reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`); ``far_open=False``
+    keeps the fills open to the far field (the default model's rule disabled), for the ablation.
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
@@ -53,6 +56,8 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
     raw = DepthCache(cache_root, seq.identity(), DepthParams())
     inp = {m: DepthCache(cache_root, seq.identity(), InpaintParams(method=m)) for m in methods}
     model = sigma_model or DepthSigmaModel.for_rig(rig)
+    if not far_open:
+        model = replace(model, far_open_sigmas=0.0)
 
     def raw_provider(i: int):
         f = raw.get(i)
@@ -62,7 +67,8 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
         def p(i: int):
             f = inp[m].get(i)
             r = raw.get(i)
-            return f.depth_m, f.valid, model.filled_sigma(f.depth_m, r.valid, m)
+            valid, sigma = model.filled(f.depth_m, f.valid, r.depth_m, r.valid, m)
+            return f.depth_m, valid, sigma
         return p
 
     def exact_provider(i: int):

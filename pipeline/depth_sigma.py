@@ -10,6 +10,13 @@ measured pixel (the fill extrapolates further) and with depth. The model is
 ``σ_Z = Z · min(FILL_REL_MAX, FILL_REL_0 + FILL_REL_PER_PX · dist_px)``, with the coefficients per method fitted once
 on simulated frames against exact depth (``fit_fill_model``; the fit and its data are recorded in
 :data:`FILL_CALIBRATION`). Measured pixels of an inpainted map keep the raw σ.
+
+Fills open to the far field carry no depth (σ → ∞). A hole that borders a measured pixel whose disparity is
+within a few σ_d of zero (a surface that stereo cannot tell from infinity: the horizon, the far end of the rows)
+is not bounded from above by anything the camera measured: sky and the far field beyond the stereo range are
+holes of that kind, and a fill there extrapolates the bordering depths into a region whose true depth may be
+anywhere beyond them (measured: :data:`FAR_OPEN_SIGMAS`). :meth:`DepthSigmaModel.filled` drops those fills
+from the valid mask, so the feature there stays monocular, as it is in ``depth-raw``.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["DepthSigmaModel", "RAW_DISPARITY_SIGMA_PX", "FILL_CALIBRATION", "fill_distance_px", "fit_fill_model"]
+__all__ = ["DepthSigmaModel", "RAW_DISPARITY_SIGMA_PX", "FILL_CALIBRATION", "FAR_OPEN_SIGMAS", "FAR_OPEN_RADIUS_PX",
+           "fill_distance_px", "fit_fill_model"]
 
 #: σ of SGBM's disparity error, px: robust σ (1.4826·MAD) of ``f·B/Z_sgbm − f·B/Z_exact`` over the valid pixels
 #: (0.3–20 m) of every 5th frame of the three 10 s presets, simulator version 4: 0.482 / 0.585 / 0.606 px
@@ -45,6 +53,19 @@ FILL_CALIBRATION: dict[str, tuple[float, float, float]] = {
 }
 
 
+#: A measured disparity at most this many σ_d (:data:`RAW_DISPARITY_SIGMA_PX`) above zero is compatible with a
+#: point at infinity (5 × 0.545 px = 2.7 px: ≥ 15.5 m on the Rosario rig, f·B ≈ 42 px·m); a filled pixel within
+#: :data:`FAR_OPEN_RADIUS_PX` of such a measurement is "open to the far field" and carries no depth.
+#: Measured (120 s rosario-like-02, seed 0, every 15th frame, the depth front end's hole-fed features): of the
+#: features whose tracked point has no depth in 0.3–20 m (sky, far field: their fills are 3.5 / 11 / 18 m at
+#: q10 / 50 / 90), 95 % have a measured depth ≥ 16 m within a 63 × 63 window; of the hole-fed features with a
+#: tracked 3-D point (or an exact map value) ≤ 1 %. In the VIO those far fills alone took Telea's 120 s ATE from
+#: 0.144 m (depth-raw) to 26.6 m; every other fill together gave 0.139 m (benchmarks/bench_depth_oracle.py).
+FAR_OPEN_SIGMAS = 5.0
+#: Half-size (px) of the square window in which a filled pixel looks for a far-field measurement (63 × 63 px).
+FAR_OPEN_RADIUS_PX = 31
+
+
 def fill_distance_px(raw_valid: np.ndarray) -> np.ndarray:
     """(H, W) float32 Euclidean distance (px) of every pixel to the nearest raw-valid pixel (0 on valid ones)."""
     if raw_valid.all():
@@ -61,11 +82,14 @@ class DepthSigmaModel:
     Attributes:
         fx_baseline: rectified f·B in px·m. disparity_sigma_px: σ_d of raw SGBM, px.
         fill: method → (rel_0, rel_per_px, rel_max) (see the module doc).
+        far_open_sigmas, far_open_radius_px: the far-field rule (:data:`FAR_OPEN_SIGMAS`); 0 sigmas disables it.
     """
 
     fx_baseline: float
     disparity_sigma_px: float = RAW_DISPARITY_SIGMA_PX
     fill: dict[str, tuple[float, float, float]] = field(default_factory=lambda: dict(FILL_CALIBRATION))
+    far_open_sigmas: float = FAR_OPEN_SIGMAS
+    far_open_radius_px: int = FAR_OPEN_RADIUS_PX
 
     @classmethod
     def for_rig(cls, rig) -> DepthSigmaModel:
@@ -88,6 +112,31 @@ class DepthSigmaModel:
         s_raw = z * z * np.float32(self.disparity_sigma_px / self.fx_baseline)
         s = np.where(raw_valid, s_raw, np.maximum(s_fill, s_raw))
         return np.where(np.isfinite(z) & (z > 0), s, np.nan).astype(np.float32)
+
+
+    def far_open(self, raw_depth_m: np.ndarray, raw_valid: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the holes of a raw map within ``far_open_radius_px`` (Chebyshev) of a measured pixel whose
+        disparity ``f·B / Z`` is at most ``far_open_sigmas · disparity_sigma_px`` (all False when disabled)."""
+        if self.far_open_sigmas <= 0 or raw_valid.all():
+            return np.zeros(raw_valid.shape, dtype=bool)
+        z_far = self.fx_baseline / (self.far_open_sigmas * self.disparity_sigma_px)
+        far = (raw_valid & (raw_depth_m >= z_far)).astype(np.uint8)
+        if not far.any():
+            return np.zeros(raw_valid.shape, dtype=bool)
+        k = 2 * int(self.far_open_radius_px) + 1
+        near_far = cv2.dilate(far, np.ones((k, k), np.uint8)) > 0
+        return near_far & ~raw_valid
+
+    def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
+               method: str) -> tuple[np.ndarray, np.ndarray]:
+        """What an inpainted map gives the VIO: ``(valid, σ_Z)``, both (H, W).
+
+        ``valid`` is the inpainted map's mask less the fills open to the far field (:meth:`far_open`); σ_Z in
+        metres is :meth:`filled_sigma` (NaN where not valid). ``raw_*``: the raw SGBM map the fill was made from.
+        """
+        ok = valid & ~self.far_open(raw_depth_m, raw_valid)
+        s = self.filled_sigma(depth_m, raw_valid, method)
+        return ok, np.where(ok, s, np.nan).astype(np.float32)
 
 
 def fit_fill_model(rel_err: np.ndarray, dist_px: np.ndarray, rel_max: float = 0.5) -> tuple[float, float, float]:

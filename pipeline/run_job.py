@@ -185,15 +185,15 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: _FrameLog) -> t
                                        f"{frame.stamp_ns} ns" + (f" (it holds {d.stamp_ns} ns)" if d else ""))
                 if raw_store is None:
                     sigma = sigma_model.raw_sigma(d.depth_m, d.valid)
-                    measured = d.valid
+                    valid = measured = d.valid
                 else:
                     r = raw_store.get(frame.index, grey=False)
                     if r is None or r.stamp_ns != frame.stamp_ns:
                         raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
                                            f"{frame.stamp_ns} ns")
-                    sigma = sigma_model.filled_sigma(d.depth_m, r.valid, plan.inpaint_method)
+                    valid, sigma = sigma_model.filled(d.depth_m, d.valid, r.depth_m, r.valid, plan.inpaint_method)
                     measured = r.valid
-                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=d.valid, depth_sigma=sigma,
+                pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=valid, depth_sigma=sigma,
                                      depth_measured=measured)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
             log.add_gate(vio.last_stats)

@@ -50,6 +50,28 @@ def test_raw_sigma_follows_the_disparity_model_and_fills_are_less_certain():
     assert filled[10, 14] > filled[10, 10] > raw[0, 0]                 # farther into the hole: less certain
 
 
+def test_fills_open_to_the_far_field_carry_no_depth():
+    # f·B = 40 px·m, σ_d = 0.5 px, 5 σ → a measured depth ≥ 40 / 2.5 = 16 m is compatible with infinity
+    model = DepthSigmaModel(fx_baseline=40.0, disparity_sigma_px=0.5, fill={"m": (0.1, 0.0, 0.5)},
+                            far_open_sigmas=5.0, far_open_radius_px=3)
+    raw = np.full((12, 40), 4.0, np.float32)
+    raw_valid = np.ones(raw.shape, bool)
+    raw[:, 30:] = 18.0                                                 # the far field on the right
+    raw_valid[4:8, 5:9] = False                                        # a hole among 4 m surfaces
+    raw_valid[4:8, 24:29] = False                                      # a hole next to the far field (cols 24-28)
+    inpainted = np.where(raw_valid, raw, 5.0).astype(np.float32)
+    valid, sigma = model.filled(inpainted, np.ones(raw.shape, bool), raw, raw_valid, "m")
+    assert valid[5, 6] and sigma[5, 6] == pytest.approx(0.5, rel=1e-5)  # an enclosed fill: the fill model's σ
+    assert not valid[5, 27]                                            # 3 px from the 18 m pixels: open
+    assert not valid[5, 28] and np.isnan(sigma[5, 28])
+    assert valid[raw_valid].all()                                      # measured pixels are never dropped
+    assert valid[5, 24]                                                # 6 px away: beyond the stated radius (3)
+    off = dataclasses.replace(model, far_open_sigmas=0.0)
+    assert off.filled(inpainted, np.ones(raw.shape, bool), raw, raw_valid, "m")[0].all()
+    near = np.where(raw > 10, 12.0, raw).astype(np.float32)            # 12 m is not compatible with infinity
+    assert model.filled(inpainted, np.ones(raw.shape, bool), near, raw_valid, "m")[0].all()
+
+
 def test_fill_model_fit_recovers_a_known_growth():
     rng = np.random.default_rng(0)
     dist = rng.uniform(0, 60, 200_000)
