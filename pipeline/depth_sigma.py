@@ -54,16 +54,20 @@ FILL_CALIBRATION: dict[str, tuple[float, float, float]] = {
 
 
 #: A measured disparity at most this many σ_d (:data:`RAW_DISPARITY_SIGMA_PX`) above zero is compatible with a
-#: point at infinity (5 × 0.545 px = 2.7 px: ≥ 15.5 m on the Rosario rig, f·B ≈ 42 px·m); a filled pixel within
-#: :data:`FAR_OPEN_RADIUS_PX` of such a measurement is "open to the far field" and carries no depth.
+#: point at infinity (5 × 0.545 px = 2.7 px: ≥ 15.5 m on the Rosario rig, f·B ≈ 42 px·m); a filled pixel joined
+#: to such a measurement through the hole within :data:`FAR_OPEN_RADIUS_PX` steps is "open to the far field" and
+#: carries no depth.
 #: Measured (120 s rosario-like-02, seed 0, every 15th frame, the depth front end's hole-fed features): of the
 #: features whose tracked point has no depth in 0.3–20 m (sky, far field: their fills are 3.5 / 11 / 18 m at
 #: q10 / 50 / 90), 95 % have a measured depth ≥ 16 m within a 63 × 63 window; of the hole-fed features with a
 #: tracked 3-D point (or an exact map value) ≤ 1 %. In the VIO those far fills alone took Telea's 120 s ATE from
 #: 0.144 m (depth-raw) to 26.6 m; every other fill together gave 0.139 m (benchmarks/bench_depth_oracle.py).
 FAR_OPEN_SIGMAS = 5.0
-#: Half-size (px) of the square window in which a filled pixel looks for a far-field measurement (63 × 63 px).
-FAR_OPEN_RADIUS_PX = 31
+#: Geodesic reach (px, 8-connected steps through hole pixels) from a far-field measurement. Measured on the same
+#: features: a 31 px window flags 71 % of the far features (25 % of them have no measured pixel that close) and
+#: 1 % / 0 % of the others; a 63-step geodesic reach flags 99 % of the far ones and 6 % / 4 % of those with a 3-D
+#: point / an exact map value; a plain "> 31 px from any measurement" rule would cost 20 % / 15 % of those.
+FAR_OPEN_RADIUS_PX = 63
 
 
 def fill_distance_px(raw_valid: np.ndarray) -> np.ndarray:
@@ -115,17 +119,28 @@ class DepthSigmaModel:
 
 
     def far_open(self, raw_depth_m: np.ndarray, raw_valid: np.ndarray) -> np.ndarray:
-        """(H, W) bool: the holes of a raw map within ``far_open_radius_px`` (Chebyshev) of a measured pixel whose
-        disparity ``f·B / Z`` is at most ``far_open_sigmas · disparity_sigma_px`` (all False when disabled)."""
+        """(H, W) bool: the holes of a raw map that reach a far-field measurement through the hole itself.
+
+        A far-field measurement is a measured pixel whose disparity ``f·B / Z`` is at most
+        ``far_open_sigmas · disparity_sigma_px``; a hole pixel is open when an 8-connected path of at most
+        ``far_open_radius_px`` steps through hole pixels joins it to one (a geodesic distance, so openness does not
+        jump across a measured surface into a neighbouring hole). All False when disabled.
+        """
         if self.far_open_sigmas <= 0 or raw_valid.all():
             return np.zeros(raw_valid.shape, dtype=bool)
         z_far = self.fx_baseline / (self.far_open_sigmas * self.disparity_sigma_px)
         far = (raw_valid & (raw_depth_m >= z_far)).astype(np.uint8)
         if not far.any():
             return np.zeros(raw_valid.shape, dtype=bool)
-        k = 2 * int(self.far_open_radius_px) + 1
-        near_far = cv2.dilate(far, np.ones((k, k), np.uint8)) > 0
-        return near_far & ~raw_valid
+        hole = (~raw_valid).astype(np.uint8)
+        k3 = np.ones((3, 3), np.uint8)
+        reach = far
+        for _ in range(int(self.far_open_radius_px)):
+            grown = cv2.dilate(reach, k3) & (hole | far)
+            if np.array_equal(grown, reach):
+                break
+            reach = grown
+        return (reach > 0) & ~raw_valid
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:

@@ -58,18 +58,20 @@ def test_fills_open_to_the_far_field_carry_no_depth():
     raw_valid = np.ones(raw.shape, bool)
     raw[:, 30:] = 18.0                                                 # the far field on the right
     raw_valid[4:8, 5:9] = False                                        # a hole among 4 m surfaces
-    raw_valid[4:8, 24:29] = False                                      # a hole next to the far field (cols 24-28)
+    raw_valid[4:8, 24:30] = False                                      # a hole that borders the far field
+    raw_valid[0:3, 25:29] = False                                      # a hole behind a 4 m wall (row 3)
     inpainted = np.where(raw_valid, raw, 5.0).astype(np.float32)
-    valid, sigma = model.filled(inpainted, np.ones(raw.shape, bool), raw, raw_valid, "m")
+    all_valid = np.ones(raw.shape, bool)
+    valid, sigma = model.filled(inpainted, all_valid, raw, raw_valid, "m")
     assert valid[5, 6] and sigma[5, 6] == pytest.approx(0.5, rel=1e-5)  # an enclosed fill: the fill model's σ
-    assert not valid[5, 27]                                            # 3 px from the 18 m pixels: open
-    assert not valid[5, 28] and np.isnan(sigma[5, 28])
+    assert not valid[5, 29] and not valid[5, 27] and np.isnan(sigma[5, 27])  # ≤ 3 steps from the 18 m pixels
+    assert valid[5, 26] and valid[5, 24]                               # 4 and 6 steps: beyond the stated reach
+    assert valid[1, 28]                                                # 2 px away, but across a measured wall
     assert valid[raw_valid].all()                                      # measured pixels are never dropped
-    assert valid[5, 24]                                                # 6 px away: beyond the stated radius (3)
     off = dataclasses.replace(model, far_open_sigmas=0.0)
-    assert off.filled(inpainted, np.ones(raw.shape, bool), raw, raw_valid, "m")[0].all()
+    assert off.filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
     near = np.where(raw > 10, 12.0, raw).astype(np.float32)            # 12 m is not compatible with infinity
-    assert model.filled(inpainted, np.ones(raw.shape, bool), near, raw_valid, "m")[0].all()
+    assert model.filled(inpainted, all_valid, near, raw_valid, "m")[0].all()
 
 
 def test_fill_model_fit_recovers_a_known_growth():
