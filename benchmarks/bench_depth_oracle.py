@@ -69,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-stereo", action="store_true")
     ap.add_argument("--no-far-open", action="store_true",
                     help="keep the fills open to the far field (disable pipeline.depth_sigma's far-field rule)")
+    ap.add_argument("--far-open-radius", type=int, default=None,
+                    help="geodesic reach (px) of the far-field rule (default: pipeline.depth_sigma's)")
     ap.add_argument("--track-noise", nargs="*", type=float, default=[],
                     help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
     ap.add_argument("--only-rungs", nargs="*", default=None, help="run only these rung names (e.g. to save time)")
@@ -84,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
         prep = prepare_oracle(src.sim_dir, cache, args.methods, config, args.seeds, args.max_frames,
-                              far_open=not args.no_far_open)
+                              far_open=not args.no_far_open, far_open_radius_px=args.far_open_radius)
         rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]
@@ -95,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         extra[preset] = {"truth": prep["truth_stats"], "depth_error_at_tracked_points": prep["depth_errors"]}
         print(f"\n### {preset} ({len(args.seeds)} seeds, {args.duration:g} s; config {overrides or 'default'}; "
               f"σ to the filter: {'no' if args.no_sigma else 'yes'}; far-field fills: "
-              f"{'kept' if args.no_far_open else 'dropped'})")
+              f"{'kept' if args.no_far_open else 'dropped'}"
+              f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'})")
         print("\n".join(_fmt(res, args.seeds)))
         tri = np.mean([v["triangulated"] for v in prep["truth_stats"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "
