@@ -21,6 +21,7 @@ __all__ = ["instrument_table"]
 _COLUMNS = (("feature_depth", "filled_fraction", "filled share of feature depths", "{:.0%}"),
             ("feature_depth", "sigma_rel_median_measured", "σ_Z/Z measured", "{:.1%}"),
             ("feature_depth", "sigma_rel_median_filled", "σ_Z/Z filled", "{:.1%}"),
+            ("feature_depth", "far_open_fill_fraction", "fill pixels open to the far field", "{:.0%}"),
             ("chi2_gate", "gamma_per_dof_median", "γ/dof median", "{:.3f}"),
             ("chi2_gate", "gamma_per_dof_mean", "γ/dof mean", "{:.2f}"),
             ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"))
@@ -47,7 +48,9 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
         cells = [fmt.format(float(np.median(vals[key]))) if vals.get(key) else "–" for _, key, _, fmt in _COLUMNS]
         lines.append(f"| {seq} | {var} | {n} | " + " | ".join(cells) + " |")
     return ("Per sequence and variant, medians over runs. *Filled share*: feature depths read from inpainted "
-            "pixels (raw SGBM hole). *σ_Z/Z*: the depth uncertainty the filter was given (pipeline/depth_sigma.py). "
+            "pixels (raw SGBM hole). *Fill pixels open to the far field*: inpainted pixels given no depth because "
+            "their hole reaches a measurement stereo cannot tell from infinity (pipeline/depth_sigma.py, `far_open`). "
+            "*σ_Z/Z*: the depth uncertainty the filter was given (pipeline/depth_sigma.py). "
             "*γ/dof*: the χ² statistic per degree of freedom of every gated feature; ≈ 1 for a calibrated "
             "measurement noise (the default pixel σ ≈ 2.5 px is ≈ 10× the simulator's KLT jitter, so it is far "
             "below 1; see the README).\n\n" + "\n".join(lines))

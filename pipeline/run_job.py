@@ -61,6 +61,14 @@ class _FrameLog:
         self.gate_ratio: list[np.ndarray] = []
         self.gated = 0
         self.gated_out = 0
+        self.fill_px = 0
+        self.far_open_px = 0
+
+    def add_fills(self, n_filled_px: int, n_far_open_px: int) -> None:
+        """Count one frame's inpainted pixels (raw SGBM holes the method filled) and how many of them were
+        dropped as open to the far field (:meth:`pipeline.depth_sigma.DepthSigmaModel.far_open`)."""
+        self.fill_px += int(n_filled_px)
+        self.far_open_px += int(n_far_open_px)
 
     def add_gate(self, stats: Any) -> None:
         """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature."""
@@ -125,6 +133,8 @@ class _FrameLog:
             r = rel[sel & np.isfinite(rel)]
             if r.size:
                 out[f"sigma_rel_median_{name}"] = float(np.median(r))
+        if self.fill_px:
+            out["far_open_fill_fraction"] = float(self.far_open_px / self.fill_px)
         return out
 
     def timing_summary(self) -> dict[str, float]:
@@ -193,6 +203,8 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: _FrameLog) -> t
                                            f"{frame.stamp_ns} ns")
                     valid, sigma = sigma_model.filled(d.depth_m, d.valid, r.depth_m, r.valid, plan.inpaint_method)
                     measured = r.valid
+                    fills = d.valid & ~r.valid
+                    log.add_fills(np.count_nonzero(fills), np.count_nonzero(fills & ~valid))
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=valid, depth_sigma=sigma,
                                      depth_measured=measured)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
