@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
         prep = prepare_oracle(src.sim_dir, cache, args.methods, config, args.seeds, args.max_frames,
-                              far_open=not args.no_far_open, far_open_radius_px=args.far_open_radius)
+                              far_open_radius_px=0 if args.no_far_open else args.far_open_radius)
         rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]

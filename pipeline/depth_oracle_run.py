@@ -37,14 +37,13 @@ __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference",
 
 def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                    seeds: Iterable[int], max_frames: int | None = None,
-                   sigma_model: DepthSigmaModel | None = None, far_open: bool = True,
+                   sigma_model: DepthSigmaModel | None = None,
                    far_open_radius_px: int | None = None) -> dict[str, Any]:
     """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
 
     Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
-    reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`); ``far_open=False``
-    keeps the fills open to the far field (the default model's rule disabled), for the ablation;
-    ``far_open_radius_px`` replaces the rule's geodesic reach (px).
+    reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`); ``far_open_radius_px``
+    replaces the far-field rule's geodesic reach (px) for the ablations: 0 turns the rule off (every fill kept).
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
@@ -58,8 +57,6 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
     raw = DepthCache(cache_root, seq.identity(), DepthParams())
     inp = {m: DepthCache(cache_root, seq.identity(), InpaintParams(method=m)) for m in methods}
     model = sigma_model or DepthSigmaModel.for_rig(rig)
-    if not far_open:
-        model = replace(model, far_open_sigmas=0.0)
     if far_open_radius_px is not None:
         model = replace(model, far_open_radius_px=int(far_open_radius_px))
 

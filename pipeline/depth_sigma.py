@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from pipeline.far_field_kernels import geodesic_reach
+
 __all__ = ["DepthSigmaModel", "RAW_DISPARITY_SIGMA_PX", "FILL_CALIBRATION", "FAR_OPEN_SIGMAS", "FAR_OPEN_RADIUS_PX",
            "fill_distance_px", "fit_fill_model"]
 
@@ -86,7 +88,8 @@ class DepthSigmaModel:
     Attributes:
         fx_baseline: rectified f·B in px·m. disparity_sigma_px: σ_d of raw SGBM, px.
         fill: method → (rel_0, rel_per_px, rel_max) (see the module doc).
-        far_open_sigmas, far_open_radius_px: the far-field rule (:data:`FAR_OPEN_SIGMAS`); 0 sigmas disables it.
+        far_open_sigmas, far_open_radius_px: the far-field rule (:data:`FAR_OPEN_SIGMAS`); 0 sigmas or a reach of
+            0 disables it.
     """
 
     fx_baseline: float
@@ -129,18 +132,10 @@ class DepthSigmaModel:
         if self.far_open_sigmas <= 0 or raw_valid.all():
             return np.zeros(raw_valid.shape, dtype=bool)
         z_far = self.fx_baseline / (self.far_open_sigmas * self.disparity_sigma_px)
-        far = (raw_valid & (raw_depth_m >= z_far)).astype(np.uint8)
+        far = raw_valid & (raw_depth_m >= z_far)
         if not far.any():
             return np.zeros(raw_valid.shape, dtype=bool)
-        hole = (~raw_valid).astype(np.uint8)
-        k3 = np.ones((3, 3), np.uint8)
-        reach = far
-        for _ in range(int(self.far_open_radius_px)):
-            grown = cv2.dilate(reach, k3) & (hole | far)
-            if np.array_equal(grown, reach):
-                break
-            reach = grown
-        return (reach > 0) & ~raw_valid
+        return geodesic_reach(far, ~raw_valid | far, int(self.far_open_radius_px)) & ~raw_valid
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:

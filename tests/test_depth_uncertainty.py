@@ -163,3 +163,18 @@ def test_depth_sigma_reaches_the_filter_from_observations():
     flt._add_observations(obs, 0, FrameStats())
     assert fs.depth_sigma[rows[0], 0] == pytest.approx(0.3)
     assert np.isnan(fs.depth_sigma[rows[1], 0])                       # no depth: its σ is not kept
+
+
+def test_geodesic_reach_equals_iterated_constrained_dilation():
+    """The compiled search gives the same set as ``steps`` rounds of a 3 × 3 dilation kept inside ``allowed``."""
+    import cv2
+
+    from pipeline.far_field_kernels import geodesic_reach
+    rng = np.random.default_rng(3)
+    for steps in (0, 1, 4, 40):
+        allowed = rng.random((40, 60)) < 0.6
+        seed = allowed & (rng.random(allowed.shape) < 0.01)
+        reach = seed.astype(np.uint8)
+        for _ in range(steps):
+            reach = cv2.dilate(reach, np.ones((3, 3), np.uint8)) & allowed.astype(np.uint8)
+        assert np.array_equal(geodesic_reach(seed, allowed, steps), reach > 0), steps
