@@ -46,12 +46,14 @@ from pipeline.sim_source import simulate_cached  # noqa: E402
 
 
 def _fmt(res: dict, seeds: list[int]) -> list[str]:
-    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | gated out | depth fallback | failed |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | gated out | depth fallback "
+             "| failed |",
+             "|---|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]
         lines.append(f"| {name} | {np.nanmean(a):.4f} | {' '.join(f'{x:.4f}' for x in a)} | "
-                     f"{r.get('depth_fraction', float('nan')):.2f} | {r.get('gated_out', '')} | "
+                     f"{r.get('depth_fraction', float('nan')):.2f} | "
+                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {r.get('gated_out', '')} | "
                      f"{r.get('depth_fallback', '')} | "
                      f"{len(r['failed'])} |")
     return lines

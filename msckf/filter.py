@@ -482,7 +482,7 @@ class MsckfFilter:
         acc_rows_count: list[np.ndarray] = []
         for grp in bucket_by_length(n_obs):
             b = self._batch(rows[grp], clone_mask[grp], spec)
-            gamma = gating_chi2(self.P, b, sigma)
+            gamma = gating_chi2(self.P, b, sigma, c.gate_noise or None)
             dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[grp]
             ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
             st.gate_gamma.append(gamma)
@@ -552,7 +552,7 @@ class MsckfFilter:
         if len(retry) == 0:
             return 0
         b = self._batch(rows[retry], clone_mask[retry], spec, without_depth=True)
-        gamma = gating_chi2(self.P, b, c.feature_noise)
+        gamma = gating_chi2(self.P, b, c.feature_noise, c.gate_noise or None)
         dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[retry]
         ok2 = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
         if np.any(ok2):

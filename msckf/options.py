@@ -187,6 +187,12 @@ class UpdateOptions:
             (≈ 12 px) only makes sense paired with S-MSCKF's 5 % gate (msckf.md §0.3: carry the pair over or
             re-tune both; this port re-tunes both). On the simulated feature world (benchmarks/bench_msckf.py) an
             under-stated σ costs far more than an over-stated one (the gate then rejects good features).
+        gate_noise: σ of a normalised image coordinate in the χ² gate only (the pixel rows of
+            ``S = HPHᵀ + R``; a depth row keeps its own σ there), 0 (default) = ``feature_noise``. The update keeps
+            ``feature_noise``: a track's pixel errors are mostly a per-track constant (measured, stop 20) that the
+            feature's position absorbs in the null-space residual the gate sees, but the update counts each
+            observation as independent, so its σ must cover that shared part; the gate's σ must describe the
+            residual it tests.
         chi2_quantile, chi2_dof: [port] χ² gate. Each feature is accepted when
             ``rᵀ(HPHᵀ + σ²I)⁻¹r < chi2.ppf(chi2_quantile, dof)``. Default: the 95 % quantile with
             ``dof = residual rows after null-space projection`` (``"residual"``: a true 5 % false-rejection
@@ -222,6 +228,7 @@ class UpdateOptions:
     """
 
     feature_noise: float = 0.007
+    gate_noise: float = 0.0
     chi2_quantile: float = 0.95
     chi2_dof: str = "residual"
     robust_k: float = 0.0
@@ -231,7 +238,8 @@ class UpdateOptions:
     depth_fallback: bool = True
 
     def __post_init__(self) -> None:
-        _check(self, positive=("feature_noise",), non_negative=("max_update_rows", "robust_k", "track_drift_psd"))
+        _check(self, positive=("feature_noise",),
+               non_negative=("gate_noise", "max_update_rows", "robust_k", "track_drift_psd"))
         if not 0.0 < self.chi2_quantile < 1.0:
             raise _bad(self, "chi2_quantile", "must be in (0, 1)")
         if self.chi2_dof not in ("residual", "observations"):

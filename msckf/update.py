@@ -249,17 +249,23 @@ def _gather_P_blocks(P: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return Pc[pos[:, :, None], pos[:, None, :]]
 
 
-def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float) -> np.ndarray:
+def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float, pixel_sigma: float | None = None) -> np.ndarray:
     """χ² statistic γ of each feature's null-space-projected residual (see module doc). (k,) values.
 
-    Features whose H_f is rank deficient get γ = inf.
+    ``sigma``: the σ every row is whitened to (the feature σ, normalised units). ``pixel_sigma``: if given, the
+    σ of the pixel rows (u0, v0, u1, v1) in S instead of ``sigma``; the inverse-depth row (index 4, whitened to
+    ``sigma`` by :func:`measurement_blocks`) keeps ``sigma``, i.e. its own σ_ρ. Features whose H_f is rank
+    deficient get γ = inf.
     """
     k, n, R, _ = batch.Hx.shape
     Pg = _gather_P_blocks(P, batch.pos)                                   # (k, n, n, 6, 6)
     HP = batch.Hx[:, :, None] @ Pg                                        # (k, n, n, R, 6)
     S = (HP @ np.swapaxes(batch.Hx, -1, -2)[:, None]).transpose(0, 1, 3, 2, 4).reshape(k, n * R, n * R)
+    var = np.full(R, sigma * sigma)
+    if pixel_sigma is not None:
+        var[:min(R, 4)] = pixel_sigma * pixel_sigma
     rows = batch.rows.reshape(k, n * R)
-    S = S + np.eye(n * R) * np.where(rows, sigma * sigma, 1.0)[:, :, None]
+    S = S + np.eye(n * R) * np.where(rows, np.tile(var, n)[None, :], 1.0)[:, :, None]
     r = batch.r.reshape(k, n * R, 1)
     Hf = batch.Hf.reshape(k, n * R, 3)
     X = np.linalg.solve(S, np.concatenate([r, Hf], axis=2))

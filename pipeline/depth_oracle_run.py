@@ -197,9 +197,12 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     imu = seq.imu_array()
     ate: dict[int, float] = {}
     failed: dict[int, str] = {}
+    gamma_medians: list[float] = []
+    gated_out = 0
     for seed in seeds:
         vio = Msckf(config, seq.calibration, variant="stereo", seed=seed)
         stamps, ps, qs = [], [], []
+        gammas: list[np.ndarray] = []
         k = 0
         try:
             for fr in seq.stereo_frames(stop_index=max_frames):
@@ -211,6 +214,9 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                         pass
                     k += 1
                 pose = vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
+                if vio.last_stats is not None:
+                    gammas.append(vio.last_stats.gamma_per_dof())
+                    gated_out += int(vio.last_stats.n_gated_out)
                 if pose is not None:
                     stamps.append(pose.stamp_s)
                     ps.append(pose.p_world)
@@ -218,7 +224,11 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
         except FilterDivergedError as exc:
             failed[seed] = exc.reason
             continue
+        finally:
+            g = np.concatenate(gammas) if gammas else np.zeros(0)
+            gamma_medians.append(float(np.median(g)) if g.size else float("nan"))
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
         ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
-    return {"ate": ate, "failed": failed, "chain": "", "order": 0}
+    return {"ate": ate, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
+            "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan")}

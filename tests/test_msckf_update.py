@@ -365,3 +365,29 @@ def test_depth_track_whitening_counts_correlated_depth_rows_as_they_inform():
     g_whitened = np.einsum("kn,kn->k", w.r[:, :, 4], w.r[:, :, 4]) / m
     assert 0.9 < g_whitened.mean() < 1.1
     assert g_white.mean() > 2.5
+
+
+def test_gate_noise_sets_the_pixel_rows_sigma_and_leaves_the_depth_row_its_own():
+    """``gating_chi2(..., pixel_sigma=σ_g)``: features whose pixel rows carry white noise σ_g (plus an error that
+    the feature position absorbs) and whose inverse-depth row carries its own σ (whitened to the feature σ σ_f)
+    have γ/dof ≈ 1; with σ_f on every row γ/dof drops to roughly (σ_g/σ_f)² on the pixel share; σ_g = σ_f is
+    the default path to the last bit."""
+    from msckf.update import FeatureBatch
+
+    rng = np.random.default_rng(11)
+    k, n, sig_f, sig_g = 800, 8, 7e-3, 1e-3
+    rows = np.zeros((k, n, 5), bool)
+    rows[:, :, :2] = True
+    rows[:, :, 4] = rng.random((k, n)) < 0.5                          # half the observations carry a depth row
+    Hf = rng.normal(size=(k, n, 5, 3)) * rows[..., None]
+    r = np.zeros((k, n, 5))
+    r[:, :, :4] = rng.normal(size=(k, n, 4)) * sig_g
+    r[:, :, 4] = rng.normal(size=(k, n)) * sig_f                      # whitened depth row: σ_f
+    r = (r + np.einsum("knrj,kj->knr", Hf, rng.normal(size=(k, 3)) * 0.05)) * rows
+    b = FeatureBatch(np.zeros((k, n), np.int64), np.zeros((k, n, 5, 6)), Hf, r, rows)
+    P = np.zeros((21 + 6, 21 + 6))
+    dof = b.n_rows - 3
+    calibrated = gating_chi2(P, b, sig_f, sig_g) / dof
+    assert 0.93 < calibrated.mean() < 1.07
+    assert gating_chi2(P, b, sig_f).mean() / dof.mean() < 0.5
+    np.testing.assert_array_equal(gating_chi2(P, b, sig_f, sig_f), gating_chi2(P, b, sig_f))
