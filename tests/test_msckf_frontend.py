@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from msckf.errors import MsckfInputError
 from msckf.frontend import DepthFrontend, StereoFrontend
 from msckf.frontend_config import FrontendConfig
-from msckf.frontend_depth import DepthReject, depth_to_stereo, rectified_pixels_from_normalised, sample_depth
+from msckf.frontend_depth import DepthReject, depth_to_stereo, sample_depth
 from msckf.frontend_geometry import (
     GyroBuffer,
     camera_rotation,
@@ -397,7 +397,7 @@ def test_depth_to_stereo_is_exact_for_a_known_point():
     assert np.allclose(xy1, p1[:, :2] / p1[:, 2:], atol=1e-12)
     # The rectified pixel used for the look-up is the rig's own rectification of the raw pixel.
     raw = rig.left.project(p0)
-    assert np.allclose(rectified_pixels_from_normalised(xy0, rig.R_left, rig.K_rect), rig.rectify_left_pixels(raw),
+    assert np.allclose(rig.rectify_left_normalised(xy0), rig.rectify_left_pixels(raw),
                        atol=1e-6)
 
 
