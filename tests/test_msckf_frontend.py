@@ -1,4 +1,4 @@
-"""MSCKF front end on exactly rendered synthetic scenes (tests/test_msckf_frontend_scene.py).
+"""MSCKF front end on exactly rendered synthetic scenes (pipeline/plane_scene.py).
 
 Truth comes from the renderer: the 3-D point behind a feature's first pixel is re-projected into later frames and
 into the right camera, so tracking, stereo matching and depth conversion are checked against geometry, not
@@ -24,7 +24,7 @@ from msckf.frontend_geometry import (
 )
 from msckf.frontend_grid import cell_index, top_per_group
 from msckf.types import DepthSource
-from tests.test_msckf_frontend_scene import (
+from pipeline.plane_scene import (
     Plane,
     gyro_samples,
     make_texture,
@@ -272,7 +272,7 @@ def _composite(camera, T_cam_world, wall: Plane, T_cam_board, board: Plane) -> n
     img_wall = render(camera, T_cam_world, wall)
     img_board = render(camera, T_cam_board, board)
     # Board extent: rays hitting the board plane inside |x|, |y| < 0.5 m (board frame).
-    from tests.test_msckf_frontend_scene import _pixel_rays
+    from pipeline.plane_scene import _pixel_rays
     T_bc = np.linalg.inv(T_cam_board)
     dirs = _pixel_rays(camera) @ T_bc[:3, :3].T
     lam, pts = board.intersect(T_bc[:3, 3], dirs)
