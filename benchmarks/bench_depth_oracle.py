@@ -31,13 +31,11 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.depth_oracle import standard_rungs  # noqa: E402
 from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder, stereo_reference  # noqa: E402

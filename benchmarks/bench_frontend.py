@@ -1,6 +1,6 @@
 """Speed of the MSCKF front ends at the Rosario resolution (672×376) and feature counts.
 
-Renders short sequences with the exact plane renderer of the front-end tests (tests/test_msckf_frontend_scene.py)
+Renders short sequences with the exact plane renderer of the front-end tests (pipeline/plane_scene.py)
 through the Rosario rig, feeds gyro samples at 150 Hz, and times ``process()`` per frame (the first frame,
 which only detects, is excluded). OpenCV runs single-threaded unless ``--threads`` says otherwise. Each
 configuration runs ``--repeats`` times and the run with the lowest CPU-time median is reported (the machine is
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -37,13 +36,11 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from msckf.frontend import DepthFrontend, StereoFrontend  # noqa: E402
-from msckf.frontend_config import FrontendConfig  # noqa: E402
-from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.paths import cache_dir  # noqa: E402
-from tests.test_msckf_frontend_scene import (  # noqa: E402
+from msckf.frontend import DepthFrontend, StereoFrontend
+from msckf.frontend_config import FrontendConfig
+from pipeline.atomic import write_json_atomic
+from pipeline.paths import cache_dir
+from pipeline.plane_scene import (
     Plane,
     gyro_samples,
     make_texture,

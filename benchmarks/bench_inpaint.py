@@ -27,20 +27,17 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from eval.depth_metrics import depth_metrics  # noqa: E402
-from inpaint import inpaint  # noqa: E402
-from inpaint.masks import occlusion_mask, random_mask  # noqa: E402
-from inpaint.synthetic import field_depth, object_depth, room_depth, stereo_noise  # noqa: E402
-from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.paths import cache_dir  # noqa: E402
+from eval.depth_metrics import depth_metrics
+from inpaint import inpaint
+from inpaint.masks import occlusion_mask, random_mask
+from inpaint.synthetic import field_depth, object_depth, room_depth, stereo_noise
+from pipeline.atomic import write_json_atomic
+from pipeline.paths import cache_dir
 
 ALL = ("paper", "paper-greedy", "telea", "ns", "biharmonic", "ipbasic")
 PEAK = MAX_DEPTH = 20.0

@@ -1,4 +1,4 @@
-"""Benchmark the MSCKF back end on the simulated feature world (tests/msckf_sim_world.py): speed, accuracy
+"""Benchmark the MSCKF back end on the simulated feature world (msckf/synthetic.py): speed, accuracy
 ablations, and a longer Monte-Carlo NEES check.
 
 Speed: per-frame time of ``MsckfFilter.feed_features`` (IMU propagation, augmentation, lost-feature update,
@@ -26,29 +26,18 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-from scipy.stats import chi2  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from msckf.config import MsckfConfig, load_config  # noqa: E402
 from msckf.filter import MsckfFilter  # noqa: E402
-from msckf.rotation import so3_exp, so3_log  # noqa: E402
+from msckf.synthetic import FX, anees_bounds, make_world, nees_run, perturbed_filter  # noqa: E402
+from msckf.synthetic import matched_config as _config  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
-from tests.msckf_sim_world import FX, iterate, make_world  # noqa: E402  (the simulated feature world)
 
-SIM_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3)
 WARMUP_FRAMES = 25
-
-
-def _config(**kw) -> MsckfConfig:
-    args = dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, velocity_cov=1e-3)
-    args.update(kw)
-    return load_config(args)
 
 
 def _run(world, cfg):
@@ -185,24 +174,11 @@ def nees(args) -> dict:
             if kind == "depth":
                 fb = FX * float(np.linalg.norm(w.T_cam1_cam0[:3, 3]))
                 w = _with_stated_depth_sigma(w, disp_sigma, fb)
-            rng = np.random.default_rng(500 + seed)
-            d = rng.normal(size=21) * np.sqrt(P0)
-            T = w.T_cam0_imu.copy()
-            R_ci = so3_exp(d[15:18]) @ T[:3, :3]
-            p_ic = -T[:3, :3].T @ T[:3, 3] - d[18:21]
-            T[:3, :3], T[:3, 3] = R_ci, -R_ci @ p_ic
-            flt = MsckfFilter(_config(**over), T, w.T_cam1_cam0)
-            flt.initialize(w.t0, w.R0 @ so3_exp(-d[0:3]), w.p0 - d[12:15], w.v0 - d[6:9], w.b_g0 - d[3:6],
-                           w.b_a0 - d[9:12], 9.81, covariance=np.diag(P0))
-            a, b = [], []
-            for m, _ in iterate(w, flt):
-                ep = w.p_w[m] - flt.state.p
-                et = so3_log(flt.state.R_w_i.T @ w.R_w_i[m])
-                a.append(ep @ np.linalg.solve(flt.P[12:15, 12:15], ep))
-                b.append(et @ np.linalg.solve(flt.P[0:3, 0:3], et))
+            flt = perturbed_filter(w, _config(**over), P0, np.random.default_rng(500 + seed))
+            a, b = nees_run(w, flt)
             npos.append(a)
             nrot.append(b)
-        lo, hi = chi2.ppf(0.025, 3 * n_runs) / n_runs, chi2.ppf(0.975, 3 * n_runs) / n_runs
+        lo, hi = anees_bounds(n_runs)
         res = {}
         for name, arr in (("position", npos), ("orientation", nrot)):
             an = np.mean(arr, axis=0)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.variants import ODOMETRY, STEREO
 from pipeline.atomic import write_json_atomic
 from pipeline.paths import cache_dir
 
@@ -119,7 +120,7 @@ def whole_run(preset: str, durations: list[float], variants: list[str], json_pat
     results = []
     for duration in durations:
         spec = SequenceSpec(preset, duration_s=duration)
-        need = [v for v in variants if v != "odometry"] or ["stereo"]
+        need = [v for v in variants if v != ODOMETRY] or [STEREO]
         prepare_sequence(spec, need, cache_dir(), inpaint_method="telea",
                          checked=check_sequence(spec, need, cache_dir(), progress=True))
         for variant in variants:

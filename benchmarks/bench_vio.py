@@ -38,8 +38,9 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # o
 
 import numpy as np  # noqa: E402
 
+from eval.variants import DEPTH_RAW, STEREO  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 
 def _load(preset: str, duration_s: float, variant: str, max_frames: int | None) -> dict:
@@ -59,17 +60,17 @@ def _load(preset: str, duration_s: float, variant: str, max_frames: int | None) 
     imu_ns, imu = seq.imu_samples()
     frames = []
     store = None
-    if variant == "depth-raw":
+    if variant == DEPTH_RAW:
         for _ in depth_stream(seq, DepthParams(), cache=True, progress=False, cache_root=root,
                               stop_index=max_frames):
             pass
         store = DepthCache(root, seq.identity(), DepthParams())
     sigma_model = DepthSigmaModel.for_rig(seq.calibration)
-    for fr in seq.stereo_frames(stop_index=max_frames, right=variant == "stereo"):
+    for fr in seq.stereo_frames(stop_index=max_frames, right=variant == STEREO):
         def grey(bgr: np.ndarray) -> np.ndarray:
             return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if bgr.ndim == 3 else bgr
         item = {"stamp_ns": fr.stamp_ns, "left": grey(fr.left_bgr)}
-        if variant == "stereo":
+        if variant == STEREO:
             item["right"] = grey(fr.right_bgr)
         else:
             d = store.get(fr.index, grey=False)
@@ -141,7 +142,7 @@ class _Pass:
         self.name, self.mods, self.variant = name, mods, variant
         with _Using(mods):
             rig = pickle.loads(rig_pickle)  # an instance of this tree's StereoRig class
-            self.vio = mods["msckf.vio"].Msckf(config, rig, variant="stereo" if variant == "stereo" else "depth",
+            self.vio = mods["msckf.vio"].Msckf(config, rig, variant="stereo" if variant == STEREO else "depth",
                                                seed=0)
         self.non_static = mods["msckf.init"].NonStaticStartError
         self.fe_cpu: list[float] = []
@@ -164,7 +165,7 @@ class _Pass:
         t = fr["stamp_ns"] / 1e9
         with _Using(self.mods):
             c0, w0 = time.thread_time(), time.perf_counter()
-            if self.variant == "stereo":
+            if self.variant == STEREO:
                 obs = self.vio.frontend.process(t, fr["left"], fr["right"])
             else:
                 obs = self.vio.frontend.process(t, fr["left"], fr["depth"], fr["valid"], fr["sigma"], fr["valid"])

@@ -15,21 +15,19 @@ pipeline/depth_sigma.py are copied from its output (the record says which run).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.bag_reader import RosarioSequence  # noqa: E402
-from pipeline.depth import DepthParams  # noqa: E402
-from pipeline.depth_cache import DepthCache, depth_stream  # noqa: E402
-from pipeline.depth_sigma import fill_distance_px, fit_fill_model  # noqa: E402
-from pipeline.inpaint_stage import InpaintParams, inpainted_stream  # noqa: E402
-from pipeline.paths import cache_dir  # noqa: E402
-from pipeline.sim.sequence import SimulatedSequence  # noqa: E402
-from pipeline.sim_source import simulate_cached  # noqa: E402
+from pipeline.atomic import write_json_atomic
+from pipeline.bag_reader import RosarioSequence
+from pipeline.depth import DepthParams
+from pipeline.depth_cache import DepthCache, depth_stream
+from pipeline.depth_sigma import fill_distance_px, fit_fill_model
+from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+from pipeline.paths import cache_dir
+from pipeline.sim.sequence import SimulatedSequence
+from pipeline.sim_source import simulate_cached
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,13 +19,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from scipy.stats import rankdata, spearmanr  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from inpaint.c2f import inpaint_paper_c2f  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.bag_reader import RosarioSequence  # noqa: E402

@@ -17,12 +17,10 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.depth_oracle_run import default_config, prepare_oracle  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402

@@ -16,12 +16,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from eval.statistics import GroupStats, MetricSummary, bootstrap_relative_change, welch_test
+from eval.variants import DEPTH_INPAINTED, DEPTH_RAW
 
 __all__ = ["ComparisonRow", "compare_groups", "table2", "variants_table", "markdown_table", "table2_markdown",
            "variants_markdown", "fmt_pm", "BEFORE", "AFTER", "ALPHA"]
 
-BEFORE = "depth-raw"
-AFTER = "depth-inpainted"
+BEFORE = DEPTH_RAW
+AFTER = DEPTH_INPAINTED
 #: Significance level for the note.
 ALPHA = 0.05
 

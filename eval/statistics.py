@@ -14,14 +14,16 @@ import numpy as np
 from scipy import stats as sps
 
 from eval.records import RunRecord
+from eval.variants import ODOMETRY, VARIANTS
 
 __all__ = ["MetricSummary", "GroupStats", "summarize", "variant_sort_key", "welch_test", "bootstrap_relative_change",
            "DEFAULT_METRICS", "VARIANT_ORDER"]
 
 #: Metrics summarised by default: ATE RMSE and ATE mean (metres).
 DEFAULT_METRICS = ("ate_rmse_m", "ate_mean_m", "ate_rmse_pct_distance")
-#: Display order of the standard variants; anything else goes between depth-inpainted and odometry.
-VARIANT_ORDER = ("stereo", "depth-raw", "depth-inpainted", "odometry")
+#: Display order of the standard variants (:data:`eval.variants.VARIANTS`); anything else goes between
+#: depth-inpainted and odometry.
+VARIANT_ORDER = VARIANTS
 
 
 @dataclass(frozen=True)
@@ -89,7 +91,7 @@ def variant_sort_key(variant: str) -> tuple[int, str]:
     """Order: stereo, depth-raw, depth-inpainted, other variants (alphabetical), odometry."""
     if variant in VARIANT_ORDER:
         rank = VARIANT_ORDER.index(variant)
-        return (rank if variant != "odometry" else 10, variant)
+        return (rank if variant != ODOMETRY else 10, variant)
     return (5, variant)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from eval.trajectory import Trajectory
+from eval.variants import DEPTH_INPAINTED, DEPTH_RAW, ODOMETRY, STEREO, VARIANTS
 
 __all__ = ["field_path", "perturbed_estimate", "random_transform", "synthetic_runset"]
 
@@ -90,13 +91,12 @@ def perturbed_estimate(gt: Trajectory, seed: int, noise_m: float = 0.02, drift_m
 
 
 #: Per-variant error scale of :func:`synthetic_runset` (drift m/√s, yaw drift deg) — made up, for previews only.
-_VARIANT_ERRORS = {"stereo": (0.05, 2.0), "depth-raw": (0.06, 3.0), "depth-inpainted": (0.035, 1.5),
-                   "odometry": (0.15, 8.0)}
+_VARIANT_ERRORS = {STEREO: (0.05, 2.0), DEPTH_RAW: (0.06, 3.0), DEPTH_INPAINTED: (0.035, 1.5), ODOMETRY: (0.15, 8.0)}
 
 
 def synthetic_runset(sequences: tuple[str, ...] = ("sim-01", "sim-02"),
-                     variants: tuple[str, ...] = ("stereo", "depth-raw", "depth-inpainted", "odometry"),
-                     n_seeds: int = 5, failed: tuple[tuple[str, str, int], ...] = (("sim-01", "depth-raw", 3),),
+                     variants: tuple[str, ...] = VARIANTS,
+                     n_seeds: int = 5, failed: tuple[tuple[str, str, int], ...] = (("sim-01", DEPTH_RAW, 3),),
                      duration_s: float = 120.0, code_version: str = "synthetic") -> dict[str, str]:
     """Files of a fake runs folder: ``relative path → text`` (run-record JSON and TUM trajectories).
 
@@ -119,7 +119,7 @@ def synthetic_runset(sequences: tuple[str, ...] = ("sim-01", "sim-02"),
             drift, yaw = _VARIANT_ERRORS.get(variant, (0.05, 2.0))
             for seed in range(n_seeds):
                 folder = f"{seq}/{variant}/seed{seed}"
-                method = "paper" if variant == "depth-inpainted" else None
+                method = "paper" if variant == DEPTH_INPAINTED else None
                 cfg = {"sequence": seq, "variant": variant, "inpaint_method": method}
                 if (seq, variant, seed) in failed:
                     rec = RunRecord(seq, variant, seed, status="failed",

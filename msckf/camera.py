@@ -260,13 +260,20 @@ class StereoRig:
 
     # ---- pixel conversions ----------------------------------------------------------------------------------
     def rectify_left_pixels(self, raw_pixels: np.ndarray) -> np.ndarray:
-        """Raw left pixels (N, 2) to rectified left pixels (N, 2)."""
+        """Raw left pixels (N, 2) to rectified left pixels (N, 2): undistort, then :meth:`rectify_left_normalised`."""
         px = _as_points(raw_pixels, 2)
         if len(px) == 0:
             return np.zeros((0, 2))
-        xy = self.left.undistort_points(px)
-        rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ self.R_left.T
-        uvw = rays @ self.P_left[:, :3].T
+        return self.rectify_left_normalised(self.left.undistort_points(px))
+
+    def rectify_left_normalised(self, xy: np.ndarray) -> np.ndarray:
+        """Undistorted raw-left normalised coordinates ``(X/Z, Y/Z)`` (N, 2) to rectified left pixels (N, 2).
+
+        The rays ``(x, y, 1)`` go through the one homography ``K_rect R_left``; the front end uses this directly
+        on its tracks (already undistorted), :meth:`rectify_left_pixels` after undistorting raw pixels.
+        """
+        xy = _as_points(xy, 2)
+        uvw = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ (self.K_rect @ self.R_left).T
         return uvw[:, :2] / uvw[:, 2:3]
 
     def rectified_left_to_raw(self, rect_pixels: np.ndarray) -> np.ndarray:

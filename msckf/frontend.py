@@ -49,7 +49,6 @@ from msckf.frontend_depth import (
     DepthReject,
     depth_to_stereo,
     nearest_pixel_values,
-    rectified_pixels_from_normalised,
     sample_depth,
 )
 from msckf.frontend_geometry import (
@@ -494,10 +493,6 @@ class DepthFrontend(_TrackerBase):
         seed: seeds the RANSAC generator.
     """
 
-    def __init__(self, config: FrontendConfig, rig: StereoRig, T_cam0_imu: np.ndarray, seed: int) -> None:
-        super().__init__(config, rig, T_cam0_imu, seed)
-        self._K_rect = rig.K_rect
-
     def process(self, stamp_s: float, left_grey: np.ndarray, depth_m: np.ndarray,
                 depth_valid: np.ndarray, depth_sigma: np.ndarray | None = None,
                 depth_measured: np.ndarray | None = None) -> FeatureObservations:
@@ -547,7 +542,7 @@ class DepthFrontend(_TrackerBase):
         tracks, counts["pruned"] = self._prune(tracks)
         t = _lap(timings, "detect", t)
 
-        rect = rectified_pixels_from_normalised(tracks.xy0, self.rig.R_left, self._K_rect)
+        rect = self.rig.rectify_left_normalised(tracks.xy0)
         z_rect, reject = sample_depth(depth_m, depth_valid, rect, c.depth_sampling, c.depth_edge_window,
                                       c.depth_edge_threshold, c.min_depth_m, c.max_depth_m)
         z0, xy1 = depth_to_stereo(tracks.xy0, z_rect, self.rig.R_left, self.rig.T_right_left)

@@ -117,15 +117,6 @@ def nearest_pixel_values(img: np.ndarray, px: np.ndarray) -> np.ndarray:
     return img[v, u].astype(np.float64)
 
 
-def rectified_pixels_from_normalised(xy0: np.ndarray, R_left: np.ndarray, K_rect: np.ndarray) -> np.ndarray:
-    """Rectified left pixels (N, 2) of raw-cam0 normalised coordinates (N, 2).
-
-    The same as ``StereoRig.rectify_left_pixels`` applied to the raw pixels, without undistorting them again.
-    """
-    rays = np.concatenate([xy0, np.ones((len(xy0), 1))], axis=1) @ (K_rect @ R_left).T
-    return rays[:, :2] / rays[:, 2:3]
-
-
 def depth_to_stereo(
     xy0: np.ndarray,
     z_rect: np.ndarray,

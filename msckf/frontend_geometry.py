@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from msckf.rotation import skew
+
 
 class GyroBuffer:
     """Buffered IMU gyro samples and the rotation they integrate to between two image times.
@@ -98,11 +100,6 @@ def rotate_normalised(xy: np.ndarray, R: np.ndarray) -> np.ndarray:
         out = rays[:, :2] / rays[:, 2:3]
     out[rays[:, 2] <= 1e-9] = np.nan
     return out
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """3×3 cross-product matrix of a 3-vector."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def epipolar_distance(xy0: np.ndarray, xy1: np.ndarray, R_1_0: np.ndarray, t_1_0: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from msckf.options import ImuNoise
-from msckf.rotation import orthonormalize, skew, skew3, so3_exp3
+from msckf.rotation import orthonormalize, skew, so3_exp3
 from msckf.state import IMU_DIM, ImuState
 
 __all__ = ["ImuNoise", "rk4_nominal", "error_jacobian_F", "transition_matrix", "process_noise",
@@ -54,9 +54,9 @@ def rk4_nominal(R_w_i: np.ndarray, v: np.ndarray, p: np.ndarray, gyro: np.ndarra
 def error_jacobian_F(R_w_i: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> np.ndarray:
     """Continuous-time 21×21 error-state Jacobian F at the given (bias-corrected) readings."""
     F = np.zeros((IMU_DIM, IMU_DIM))
-    F[0:3, 0:3] = -skew3(gyro)
+    F[0:3, 0:3] = -skew(gyro)
     F[0:3, 3:6] = -np.eye(3)
-    F[6:9, 0:3] = -R_w_i @ skew3(acc)
+    F[6:9, 0:3] = -R_w_i @ skew(acc)
     F[6:9, 9:12] = -R_w_i
     F[12:15, 6:9] = np.eye(3)
     return F
@@ -94,10 +94,10 @@ def oc_modify_transition(Phi: np.ndarray, R_w_i_new: np.ndarray, R_w_i_null: np.
     u = R_w_i_null.T @ g_w
     s = u / (u @ u)
     A1 = Phi[6:9, 0:3]
-    w1 = skew3(v_null - v_new) @ g_w
+    w1 = skew(v_null - v_new) @ g_w
     Phi[6:9, 0:3] = A1 - np.outer(A1 @ u - w1, s)
     A2 = Phi[12:15, 0:3]
-    w2 = skew3(dt * v_null + p_null - p_new) @ g_w
+    w2 = skew(dt * v_null + p_null - p_new) @ g_w
     Phi[12:15, 0:3] = A2 - np.outer(A2 @ u - w2, s)
     return Phi
 

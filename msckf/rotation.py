@@ -36,20 +36,24 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "skew", "skew3", "so3_exp", "so3_exp3", "so3_log", "rotation_angle", "orthonormalize", "from_two_vectors",
+    "skew", "so3_exp", "so3_exp3", "so3_log", "rotation_angle", "orthonormalize", "from_two_vectors",
     "matrix_to_quat_xyzw", "quat_xyzw_to_matrix",
 ]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """Skew-symmetric (cross-product) matrix ``[v]×``.
+    """Skew-symmetric (cross-product) matrix ``[v]×`` — the one implementation in the library.
 
     Args:
-        v: (..., 3) vectors.
+        v: (3,) vector or (..., 3) vectors.
     Returns:
-        (..., 3, 3) matrices with ``[v]× @ w == cross(v, w)``.
+        (3, 3) or (..., 3, 3) matrices with ``[v]× @ w == cross(v, w)``. A single 3-vector takes a fast path
+        (one small ``np.array``) for per-sample code; the values are the same either way.
     """
     v = np.asarray(v, dtype=np.float64)
+    if v.shape == (3,):
+        x, y, z = float(v[0]), float(v[1]), float(v[2])
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     out = np.zeros(v.shape[:-1] + (3, 3))
     out[..., 0, 1] = -v[..., 2]
     out[..., 0, 2] = v[..., 1]
@@ -58,12 +62,6 @@ def skew(v: np.ndarray) -> np.ndarray:
     out[..., 2, 0] = -v[..., 1]
     out[..., 2, 1] = v[..., 0]
     return out
-
-
-def skew3(v: np.ndarray) -> np.ndarray:
-    """``[v]×`` of a single 3-vector (fast path of :func:`skew` for per-sample code)."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def so3_exp3(phi: np.ndarray) -> np.ndarray:

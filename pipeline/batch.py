@@ -27,6 +27,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from eval.variants import DEPTH_INPAINTED
 from pipeline.atomic import write_json_atomic
 from pipeline.errors import AgrivioError
 from pipeline.process_pool import spawn_pool
@@ -102,7 +103,7 @@ def failed_record(job: Job, reason: str, elapsed_s: float | None = None) -> dict
         "seed": job.seed,
         "status": "failed",
         "failure_reason": reason,
-        "inpaint_method": job.options.get("inpaint_method") if job.variant == "depth-inpainted" else None,
+        "inpaint_method": job.options.get("inpaint_method") if job.variant == DEPTH_INPAINTED else None,
         **{k: job.options.get(k) for k in RECORD_FIELDS},
         "timings": {"total_s": elapsed_s} if elapsed_s is not None else {},
         "job": job_description(job),

@@ -36,7 +36,7 @@ from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError
 from msckf.filter import MsckfFilter
 from msckf.frontend import DepthFrontend
-from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, rectified_pixels_from_normalised, sample_depth
+from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, sample_depth
 from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
 
@@ -116,7 +116,7 @@ def record_tracks(rig: Any, config: MsckfConfig, seed: int, imu: np.ndarray,
             k += 1
         d, v, s = raw_depth(index)
         obs = fe.process(float(t_img), left, d, v)
-        rect = rectified_pixels_from_normalised(obs.cam0_xy, rig.R_left, rig.K_rect)
+        rect = rig.rectify_left_normalised(obs.cam0_xy)
         tf = TrackedFrame(float(t_img), int(index), obs.ids.copy(), obs.cam0_xy.copy(),
                           obs.track_length.copy(), rect)
         for name, (dm, vm, sm) in [("raw", (d, v, s))] + [(n, p(index)) for n, p in other_maps.items()]:

@@ -18,6 +18,7 @@ from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.records import RunRecord, is_run_record, variant_display_name
 from eval.report import Report, build_report
 from eval.trajectory import read_tum
+from eval.variants import DEPTH_INPAINTED, ODOMETRY
 from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
 from pipeline.external_tracks import evaluate_external, external_record, load_external
@@ -95,7 +96,7 @@ def external_records(specs: Sequence[str], found: Sequence[tuple[Path, RunRecord
             seq = sequences[0]
         # the template: an ok VIO run of the sequence with its GT (the same association, alignment, lever arm)
         candidates = [(p, r) for p, r in found if r.sequence == seq and r.ok and r.gt_path]
-        vio = [(p, r) for p, r in candidates if r.variant != "odometry"]
+        vio = [(p, r) for p, r in candidates if r.variant != ODOMETRY]
         if not (vio or candidates):
             raise AgrivioError(f"--external {track.name}: no successful run of sequence {seq!r} with a ground truth "
                                f"to evaluate it against (sequences: {', '.join(sequences)})")
@@ -106,7 +107,7 @@ def external_records(specs: Sequence[str], found: Sequence[tuple[Path, RunRecord
         except EvalInputError as exc:
             raise AgrivioError(str(exc)) from None
         opts = options_for(template)
-        if template.variant == "odometry":
+        if template.variant == ODOMETRY:
             raise AgrivioError(f"--external {track.name}: sequence {seq!r} has only odometry runs; their lever arm "
                                f"(base_link) does not apply to an IMU-frame estimate")
         evaluation = evaluate_external(track, ref, opts)
@@ -186,7 +187,7 @@ class Comparison:
 
 def _after_variant(method: str | None) -> str | None:
     """The displayed variant of ``depth-inpainted`` with ``method`` (as :meth:`RunRecord.display_variant`)."""
-    return None if method is None else variant_display_name("depth-inpainted", method)
+    return None if method is None else variant_display_name(DEPTH_INPAINTED, method)
 
 
 def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str = DEFAULT_TITLE,

@@ -24,6 +24,7 @@ import numpy as np
 from eval.evaluate import evaluate
 from eval.records import RunRecord, config_hash
 from eval.trajectory import Trajectory, format_tum, read_tum
+from eval.variants import DEPTH_INPAINTED, ODOMETRY, STEREO, VARIANTS
 from msckf.errors import FilterDivergedError
 from msckf.init import NonStaticStartError
 from msckf.vio import Msckf
@@ -39,7 +40,6 @@ from pipeline.rosario_layout import RATE_CAMERA_HZ
 from pipeline.run_plan import RunPlan
 from pipeline.version import code_version
 
-VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 ESTIMATE_NAME = "estimate.tum"
 FRAMES_NAME = "frames.npz"
 
@@ -157,7 +157,7 @@ def _poses_to_trajectory(stamps: list[float], p: list[np.ndarray], q: list[np.nd
 def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: _FrameLog) -> tuple[Trajectory, str | None]:
     """Feed IMU and frames to the MSCKF in time order; return the trajectory and a divergence reason (or None)."""
     rig = seq.calibration
-    variant = "stereo" if job.variant == "stereo" else "depth"
+    variant = "stereo" if job.variant == STEREO else "depth"
     vio = Msckf(plan.msckf, rig, variant=variant, seed=job.seed)
     imu_ns, imu = seq.imu_samples()
     depth_params = plan.depth_params(job.variant)
@@ -168,7 +168,7 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: _FrameLog) -> t
     # Per-pixel depth σ (pipeline/depth_sigma.py): the raw validity mask travels with the inpainted map, so the
     # filter can tell a filled depth from a measured one.
     sigma_model = DepthSigmaModel.for_rig(rig)
-    raw_store = DepthCache(plan.cache_root, plan.bag_identity, plan.depth) if job.variant == "depth-inpainted" else None
+    raw_store = DepthCache(plan.cache_root, plan.bag_identity, plan.depth) if job.variant == DEPTH_INPAINTED else None
     non_static: str | None = None
     stamps: list[float] = []
     ps: list[np.ndarray] = []
@@ -254,14 +254,14 @@ def run_job(job: Job) -> dict[str, Any]:
     seq = RosarioSequence(plan.bag, camchain=plan.camchain)
     log = _FrameLog()
     failure = None
-    if job.variant == "odometry":
+    if job.variant == ODOMETRY:
         est = _run_odometry(plan, seq)
     else:
         est, failure = _run_vio(job, plan, seq, log)
         log.save(out / FRAMES_NAME)
     t_run = time.perf_counter() - t_start
     if len(est.stamps_s):
-        frame_name = "base_link" if job.variant == "odometry" else "IMU"
+        frame_name = "base_link" if job.variant == ODOMETRY else "IMU"
         write_text_atomic(out / ESTIMATE_NAME, format_tum(est, header=f"agrivio {job.label} ({frame_name} frame)"))
     metrics: dict[str, Any] = {}
     eval_options = plan.eval_options(job.variant)
@@ -271,12 +271,12 @@ def run_job(job: Job) -> dict[str, Any]:
         else:
             metrics = evaluate(read_tum(plan.gt), est, eval_options).metrics()
     settings = {"variant": job.variant, "inputs": plan.variant_inputs(job.variant), "eval": eval_options.to_dict()}
-    if job.variant != "odometry":
+    if job.variant != ODOMETRY:
         settings["msckf"] = plan.msckf.to_flat_dict()
     record = RunRecord(
         sequence=job.sequence, variant=job.variant, seed=job.seed,
         status="failed" if failure else "ok", failure_reason=failure,
-        inpaint_method=plan.inpaint_method if job.variant == "depth-inpainted" else None,
+        inpaint_method=plan.inpaint_method if job.variant == DEPTH_INPAINTED else None,
         config_hash=config_hash(settings), code_version=code_version(), metrics=metrics,
         timings={"total_s": time.perf_counter() - t_start, "run_s": t_run, **log.timing_summary()},
         estimate_path=ESTIMATE_NAME if len(est.stamps_s) else None,
@@ -309,4 +309,4 @@ def lever_arms_from_tf(seq: RosarioSequence) -> dict[str, Any]:
     return out
 
 
-__all__ = ["VARIANTS", "lever_arms_from_tf", "run_job"]
+__all__ = ["lever_arms_from_tf", "run_job"]

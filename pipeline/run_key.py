@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from eval.records import config_hash
+from eval.variants import DEPTH_INPAINTED, ODOMETRY
 
 KEY_VERSION = 1
 
@@ -96,11 +97,11 @@ def sequence_key_parts(bag_identity: str, gt: Path | str | None, camchain: Path 
 def job_key_parts(sequence_parts: dict[str, Any], variant: str, seed: int) -> dict[str, Any]:
     """The parts that determine one run of ``variant`` with ``seed`` (unused parts left out)."""
     parts = dict(sequence_parts, variant=variant, seed=int(seed))
-    if variant == "odometry":
+    if variant == ODOMETRY:
         parts.pop("msckf", None)
     if not variant.startswith("depth"):
         parts.pop("depth", None)
-    if variant != "depth-inpainted":
+    if variant != DEPTH_INPAINTED:
         parts.pop("inpaint", None)
     return parts
 

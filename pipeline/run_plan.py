@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from eval.evaluate import EvalOptions
+from eval.variants import DEPTH_INPAINTED, DEPTH_RAW, ODOMETRY
 from msckf.config import MsckfConfig
 from pipeline.depth import DepthParams
 from pipeline.errors import AgrivioError
@@ -102,7 +103,7 @@ class RunPlan:
         """:meth:`inputs` with only the options that apply to ``variant`` (no inpainting method unless
         ``depth-inpainted``)."""
         out = self.inputs()
-        if variant != "depth-inpainted":
+        if variant != DEPTH_INPAINTED:
             out.pop("inpaint_method")
         return out
 
@@ -114,16 +115,16 @@ class RunPlan:
         from every fix: there the GPS reference is interpolated (linearly, gaps ≤ 0.5 s) at the estimate's stamps.
         The lever arm is the antenna in the estimate's frame (base_link for odometry, the IMU otherwise).
         """
-        odometry = variant == "odometry"
+        odometry = variant == ODOMETRY
         return EvalOptions(align="se3", max_diff_s=EVAL_MAX_DIFF_S,
                            lever_arm_m=self.lever_arm_base if odometry else self.lever_arm_imu,
                            interpolate=odometry)
 
     def depth_params(self, variant: str) -> DepthParams | InpaintParams | None:
         """The parameters selecting the depth cache a run of ``variant`` reads (None: it reads no depth)."""
-        if variant == "depth-raw":
+        if variant == DEPTH_RAW:
             return self.depth
-        if variant == "depth-inpainted":
+        if variant == DEPTH_INPAINTED:
             if self.inpaint is None:
                 raise AgrivioError(f"{self.name}: a depth-inpainted run needs an inpainting method in its plan")
             return self.inpaint

@@ -20,6 +20,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from eval.variants import DEPTH_INPAINTED, ODOMETRY, VARIANTS
 from msckf.config import MsckfConfig
 from pipeline.bag_reader import RosarioSequence
 from pipeline.batch import INPUT_KEY, Job, failed_record, run_jobs
@@ -29,13 +30,13 @@ from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams, ensure_inpainted
 from pipeline.paths import ROSARIO_CAMCHAIN
-from pipeline.run_job import VARIANTS, lever_arms_from_tf, run_job
+from pipeline.run_job import lever_arms_from_tf, run_job
 from pipeline.run_key import code_fingerprint, input_key, sequence_key_parts
 from pipeline.run_plan import RunPlan
 from pipeline.sources import ResolvedSource, resolve_source
 from pipeline.validate import check_ground_truth, check_output_dir, check_positive_int, resolve_msckf_config
 
-DEFAULT_VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
+DEFAULT_VARIANTS = VARIANTS
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,7 @@ def check_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path
     seq = RosarioSequence(src.bag, camchain=src.camchain)
     _ = seq.calibration  # camera_info × camchain, checked now rather than in every worker
     quality = sequence_quality(seq, cache_root)
-    if any(v != "odometry" for v in variants):
+    if any(v != ODOMETRY for v in variants):
         check_stereo_pairing(src.bag, quality)
     if src.gt is not None:
         check_ground_truth(src.gt, seq.start_ns / 1e9, seq.end_ns / 1e9)
@@ -131,7 +132,7 @@ def build_plan(checked: CheckedSequence, variants: Sequence[str], cache_root: Pa
     src = checked.source
     seq = RosarioSequence(src.bag, camchain=src.camchain)
     depth = depth or DepthParams()
-    inpaint = InpaintParams(depth=depth, method=inpaint_method) if "depth-inpainted" in variants else None
+    inpaint = InpaintParams(depth=depth, method=inpaint_method) if DEPTH_INPAINTED in variants else None
     levers = dict(src.lever_arms if src.lever_arms is not None else lever_arms_from_tf(seq))
     identity = seq.identity()
     key_parts = sequence_key_parts(identity, src.gt, src.camchain or ROSARIO_CAMCHAIN, max_frames, levers,
@@ -271,8 +272,8 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
     check_positive_int("max_frames", max_frames)
     check_positive_int("workers", workers)
     extra = [m for m in dict.fromkeys(extra_inpaint_methods) if m != inpaint_method] \
-        if "depth-inpainted" in variants else []
-    for method in ([inpaint_method] if "depth-inpainted" in variants else []) + extra:
+        if DEPTH_INPAINTED in variants else []
+    for method in ([inpaint_method] if DEPTH_INPAINTED in variants else []) + extra:
         if method not in METHODS:
             raise AgrivioError(f"unknown inpainting method {method!r}; available: {', '.join(sorted(METHODS))}")
     msckf = resolve_msckf_config(msckf_config)  # the one read of --config; every run gets this object
@@ -302,7 +303,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
         jobs += plan_jobs(prepared, variants, seeds, out_dir)
         for method in extra:
             try:
-                more = prepare_sequence(c.spec, ["depth-inpainted"], cache_root, method, msckf_config, max_frames,
+                more = prepare_sequence(c.spec, [DEPTH_INPAINTED], cache_root, method, msckf_config, max_frames,
                                         progress, checked=c, msckf=msckf)
             except user_errors as exc:
                 if not keep_going:
@@ -311,7 +312,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
                 continue
             prepared.depth_stats[f"inpainted_frames[{method}]"] = more.depth_stats.get("inpainted_frames")
             prepared.stage_timings[f"inpaint_s[{method}]"] = more.stage_timings.get("inpaint_s", 0.0)
-            jobs += plan_jobs(more, ["depth-inpainted"], seeds, out_dir, folder_suffix=f"-{method}")
+            jobs += plan_jobs(more, [DEPTH_INPAINTED], seeds, out_dir, folder_suffix=f"-{method}")
         write_sequence_manifest(prepared, out_dir)
     records = run_jobs(jobs, run_job, executor=executor, workers=workers, ray_address=ray_address,
                        progress=progress, keep_failed=keep_failed) if jobs else []

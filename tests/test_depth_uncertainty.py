@@ -12,16 +12,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from msckf.config import MsckfConfig, load_config
+from msckf.config import MsckfConfig
 from msckf.filter import MsckfFilter
+from msckf.synthetic import iterate, make_world, matched_config
 from msckf.triangulation import TriangulationParams, triangulate_batch
 from msckf.types import DepthSource, FeatureObservations
 from msckf.update import inverse_depth_sigma
 from pipeline.depth_sigma import DepthSigmaModel, fill_distance_px, fit_fill_model
-from tests.msckf_sim_world import FX, iterate, make_world
-
-#: the simulated world's IMU noise (as tests/test_msckf_filter.py matches it)
-SIM_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3)
 
 
 def test_inverse_depth_sigma_uses_a_stated_sigma_else_the_model():
@@ -137,8 +134,7 @@ def test_bad_depths_with_an_honest_sigma_do_less_harm():
     more accurate than when it trusts them at the measured-depth σ (1 %). (Measured: clean 0.020 m, honest σ
     0.045 m, trusted 0.058 m; a bias of 1 σ shared by a third of the tracks still costs something.)"""
     w = make_world(seed=21, duration=6.0, max_features=150, depth_mode=True, depth_rel_sigma=0.01)
-    cfg = load_config(dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4,
-                           velocity_cov=1e-3, depth_row=True, depth_rel_sigma=0.01, depth_inv_sigma=1e-3))
+    cfg = matched_config(depth_row=True, depth_rel_sigma=0.01, depth_inv_sigma=1e-3)
     clean = _final_error(w, cfg)
     honest = _final_error(_corrupt_depths(w, 0.25, 0.25), cfg)
     trusted = _final_error(_corrupt_depths(w, 0.25, None), cfg)

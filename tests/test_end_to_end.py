@@ -6,10 +6,9 @@ import json
 
 import pytest
 
+from eval.variants import VARIANTS
 from pipeline.cli import main
 from pipeline.replay import recorded_entities
-
-VARIANTS = ("stereo", "depth-raw", "depth-inpainted", "odometry")
 
 
 @pytest.fixture(scope="module")

@@ -5,35 +5,22 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from msckf.config import MsckfConfig, load_config
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.filter import MsckfFilter
 from msckf.rotation import so3_exp, so3_log
+from msckf.synthetic import (
+    SIM_NOISE,
+    Trajectory,
+    anees_bounds,
+    iterate,
+    make_world,
+    matched_config,
+    nees_run,
+    perturbed_filter,
+)
 from msckf.types import DepthSource, FeatureObservations
-from tests.msckf_sim_world import FX, Trajectory, iterate, make_world
 
-SIM_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3)
 P0_DIAG = np.r_[[1e-4] * 3, [1e-6] * 3, [1e-3] * 3, [1e-4] * 3, [1e-4] * 3, [3.0462e-4] * 3, [2.5e-5] * 3]
-
-
-def _matched_config(**kw) -> MsckfConfig:
-    """Filter noise equal to the simulator's (1 px feature noise)."""
-    args = dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, velocity_cov=1e-3)
-    args.update(kw)
-    return load_config(args)
-
-
-def _perturbed_filter(w, cfg, P0_diag, rng):
-    """Filter whose initial state (IMU and extrinsics) is the truth minus an error drawn from P0."""
-    d = rng.normal(size=21) * np.sqrt(P0_diag)
-    T = w.T_cam0_imu.copy()
-    R_ci = so3_exp(d[15:18]) @ T[:3, :3]                       # R_c_i = Exp(−δθ_e) R̂_c_i
-    p_ic = -T[:3, :3].T @ T[:3, 3] - d[18:21]
-    T[:3, :3], T[:3, 3] = R_ci, -R_ci @ p_ic
-    flt = MsckfFilter(cfg, T, w.T_cam1_cam0)
-    flt.initialize(w.t0, w.R0 @ so3_exp(-d[0:3]), w.p0 - d[12:15], w.v0 - d[6:9], w.b_g0 - d[3:6],
-                   w.b_a0 - d[9:12], 9.81, covariance=np.diag(P0_diag))
-    return flt
 
 
 def test_nees_of_position_and_orientation_is_consistent():
@@ -43,16 +30,11 @@ def test_nees_of_position_and_orientation_is_consistent():
     nees_p, nees_t = [], []
     for seed in range(n_runs):
         w = make_world(seed=seed, world_seed=0, duration=6.0, max_features=120)
-        flt = _perturbed_filter(w, _matched_config(), P0_DIAG, np.random.default_rng(500 + seed))
-        ep_run, et_run = [], []
-        for m, _ in iterate(w, flt):
-            ep = w.p_w[m] - flt.state.p
-            et = so3_log(flt.state.R_w_i.T @ w.R_w_i[m])
-            ep_run.append(ep @ np.linalg.solve(flt.P[12:15, 12:15], ep))
-            et_run.append(et @ np.linalg.solve(flt.P[0:3, 0:3], et))
+        flt = perturbed_filter(w, matched_config(), P0_DIAG, np.random.default_rng(500 + seed))
+        ep_run, et_run = nees_run(w, flt)
         nees_p.append(ep_run)
         nees_t.append(et_run)
-    lo, hi = chi2.ppf(0.025, 3 * n_runs) / n_runs, chi2.ppf(0.975, 3 * n_runs) / n_runs
+    lo, hi = anees_bounds(n_runs)
     for name, nees in (("position", nees_p), ("orientation", nees_t)):
         anees = np.mean(nees, axis=0)
         assert lo < anees.mean() < hi, f"{name}: mean ANEES {anees.mean():.2f} outside [{lo:.2f}, {hi:.2f}]"
@@ -64,7 +46,7 @@ def test_converges_from_a_perturbed_start():
     """Start 0.3 m/s, 2° tilt and biases off (S-MSCKF initial covariances): the filter pulls them in."""
     w = make_world(seed=11, duration=8.0, max_features=150, gyro_bias0=np.array([0.01, -0.02, 0.015]),
                    acc_bias0=np.array([0.08, -0.05, 0.1]))
-    cfg = _matched_config(gyro_bias_cov=0.01, acc_bias_cov=0.01, velocity_cov=0.25)
+    cfg = matched_config(gyro_bias_cov=0.01, acc_bias_cov=0.01, velocity_cov=0.25)
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     dth = np.deg2rad([2.0, -2.0, 0.0])
     P0 = np.diag(np.r_[[np.deg2rad(3.0) ** 2] * 3, [0.01] * 3, [0.25] * 3, [0.01] * 3, [1e-6] * 3,
@@ -91,7 +73,7 @@ def test_converges_from_a_perturbed_start():
 def test_static_start_initialises_and_tracks():
     traj = Trajectory(start_still=2.0)
     w = make_world(seed=5, duration=9.0, max_features=150, trajectory=traj, gyro_bias0=np.array([0.004, -0.003, 0.002]))
-    flt = MsckfFilter(_matched_config(gyro_bias_cov=1e-4), w.T_cam0_imu, w.T_cam1_cam0)
+    flt = MsckfFilter(matched_config(gyro_bias_cov=1e-4), w.T_cam0_imu, w.T_cam1_cam0)
     poses = list(iterate(w, flt))
     n_init = sum(p is None for _, p in poses)
     assert 0 < n_init < 25                                        # 200 samples at 150 Hz ≈ 1.33 s
@@ -112,14 +94,14 @@ def test_static_start_initialises_and_tracks():
 
 def test_moving_start_is_reported():
     w = make_world(seed=6, duration=3.0, max_features=50)        # driving and weaving from t = 0
-    flt = MsckfFilter(_matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
+    flt = MsckfFilter(matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
     with pytest.raises(MsckfInputError, match="not static"):
         list(iterate(w, flt))
 
 
 def test_garbage_imu_is_reported_as_divergence():
     w = make_world(seed=7, duration=2.0, max_features=60)
-    flt = MsckfFilter(_matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
+    flt = MsckfFilter(matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     rng = np.random.default_rng(0)
     with pytest.raises(FilterDivergedError) as exc:
@@ -138,7 +120,7 @@ def test_broken_covariance_and_state_are_reported():
     w = make_world(seed=8, duration=1.0, max_features=40)
     for corrupt, words in (("nan_state", "non-finite"), ("nan_cov", "non-finite"),
                            ("indefinite", "positive semi-definite|negative variance")):
-        flt = MsckfFilter(_matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
+        flt = MsckfFilter(matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81, covariance=np.diag(P0_DIAG))
         it = iterate(w, flt)
         for _ in range(3):
@@ -155,7 +137,7 @@ def test_broken_covariance_and_state_are_reported():
 
 def test_online_reset_when_position_uncertainty_explodes():
     w = make_world(seed=9, duration=3.0, max_features=60)
-    flt = MsckfFilter(_matched_config(position_std_threshold=0.02), w.T_cam0_imu, w.T_cam1_cam0)
+    flt = MsckfFilter(matched_config(position_std_threshold=0.02), w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     resets = []
     for _, pose in iterate(w, flt):
@@ -169,7 +151,7 @@ def test_same_inputs_give_bit_identical_outputs():
     w = make_world(seed=10, duration=3.0, max_features=100, mono_fraction=0.2, outlier_fraction=0.02)
     outs = []
     for _ in range(2):
-        flt = MsckfFilter(_matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
+        flt = MsckfFilter(matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
         outs.append(np.array([np.r_[p.p_world, p.q_world_imu_xyzw, p.v_world, p.cov_diag] for _, p in iterate(w, flt)]))
     assert np.array_equal(outs[0], outs[1])
@@ -179,7 +161,7 @@ def test_same_inputs_give_bit_identical_outputs():
 def test_monocular_and_depth_observations_track(variant):
     kw = dict(mono_fraction=1.0) if variant == "mono" else dict(depth_mode=True, depth_rel_sigma=0.01)
     w = make_world(seed=12, duration=6.0, max_features=150, **kw)
-    cfg = _matched_config(depth_row=variant == "depth_row", depth_rel_sigma=0.01, depth_inv_sigma=1e-3)
+    cfg = matched_config(depth_row=variant == "depth_row", depth_rel_sigma=0.01, depth_inv_sigma=1e-3)
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     for _ in iterate(w, flt):
@@ -189,7 +171,7 @@ def test_monocular_and_depth_observations_track(variant):
 
 def test_input_errors_are_clear():
     w = make_world(seed=13, duration=1.0, max_features=20)
-    flt = MsckfFilter(_matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
+    flt = MsckfFilter(matched_config(), w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     flt.feed_imu(0.01, np.zeros(3), np.array([0, 0, 9.81]))
     with pytest.raises(MsckfInputError, match="backwards"):
@@ -207,7 +189,7 @@ def test_input_errors_are_clear():
     with pytest.raises(MsckfInputError, match="duplicate"):
         flt.feed_features(dup)
     with pytest.raises(MsckfInputError, match="4x4"):
-        MsckfFilter(_matched_config(), np.eye(3), w.T_cam1_cam0)
+        MsckfFilter(matched_config(), np.eye(3), w.T_cam1_cam0)
 
 
 def _with_biased_depth(w, every: int, factor: float):
@@ -233,7 +215,7 @@ def test_depth_fallback_keeps_the_pixels_of_a_feature_whose_depth_fails_the_gate
                                       depth_rel_sigma=0.01), every=4, factor=1.6)
     res = {}
     for fallback in (False, True):
-        cfg = _matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
+        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
         flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
         n_out = n_fb = 0
@@ -257,7 +239,7 @@ def test_depth_fallback_leaves_measured_depths_alone():
     w = replace(w, frames=[replace(f, depth_measured=np.isfinite(f.depth_m)) for f in w.frames])
     poses = {}
     for fallback in (False, True):
-        cfg = _matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
+        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
         flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
         outs = [np.r_[p.p_world, p.cov_diag] for _, p in iterate(w, flt) if p is not None]

@@ -1,4 +1,4 @@
-"""MSCKF front end on exactly rendered synthetic scenes (tests/test_msckf_frontend_scene.py).
+"""MSCKF front end on exactly rendered synthetic scenes (pipeline/plane_scene.py).
 
 Truth comes from the renderer: the 3-D point behind a feature's first pixel is re-projected into later frames and
 into the right camera, so tracking, stereo matching and depth conversion are checked against geometry, not
@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from msckf.errors import MsckfInputError
 from msckf.frontend import DepthFrontend, StereoFrontend
 from msckf.frontend_config import FrontendConfig
-from msckf.frontend_depth import DepthReject, depth_to_stereo, rectified_pixels_from_normalised, sample_depth
+from msckf.frontend_depth import DepthReject, depth_to_stereo, sample_depth
 from msckf.frontend_geometry import (
     GyroBuffer,
     camera_rotation,
@@ -24,7 +24,7 @@ from msckf.frontend_geometry import (
 )
 from msckf.frontend_grid import cell_index, top_per_group
 from msckf.types import DepthSource
-from tests.test_msckf_frontend_scene import (
+from pipeline.plane_scene import (
     Plane,
     gyro_samples,
     make_texture,
@@ -272,7 +272,7 @@ def _composite(camera, T_cam_world, wall: Plane, T_cam_board, board: Plane) -> n
     img_wall = render(camera, T_cam_world, wall)
     img_board = render(camera, T_cam_board, board)
     # Board extent: rays hitting the board plane inside |x|, |y| < 0.5 m (board frame).
-    from tests.test_msckf_frontend_scene import _pixel_rays
+    from pipeline.plane_scene import _pixel_rays
     T_bc = np.linalg.inv(T_cam_board)
     dirs = _pixel_rays(camera) @ T_bc[:3, :3].T
     lam, pts = board.intersect(T_bc[:3, 3], dirs)
@@ -397,7 +397,7 @@ def test_depth_to_stereo_is_exact_for_a_known_point():
     assert np.allclose(xy1, p1[:, :2] / p1[:, 2:], atol=1e-12)
     # The rectified pixel used for the look-up is the rig's own rectification of the raw pixel.
     raw = rig.left.project(p0)
-    assert np.allclose(rectified_pixels_from_normalised(xy0, rig.R_left, rig.K_rect), rig.rectify_left_pixels(raw),
+    assert np.allclose(rig.rectify_left_normalised(xy0), rig.rectify_left_pixels(raw),
                        atol=1e-6)
 
 

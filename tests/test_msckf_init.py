@@ -63,7 +63,7 @@ def test_a_moving_start_is_detected_and_named(motion, words):
 def test_filter_can_wait_for_a_still_period_after_a_moving_start():
     """A caller may catch the error and keep feeding: the window slides and initialisation succeeds later."""
     from msckf.filter import MsckfFilter
-    from tests.msckf_sim_world import rosario_extrinsics
+    from msckf.synthetic import rosario_extrinsics
 
     T_ci, T_10 = rosario_extrinsics()
     flt = MsckfFilter(MsckfConfig(), T_ci, T_10)

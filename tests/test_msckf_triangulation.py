@@ -3,8 +3,8 @@
 import numpy as np
 
 from msckf.rotation import so3_exp
+from msckf.synthetic import FX, rosario_extrinsics
 from msckf.triangulation import TriangulationParams, initial_guess, triangulate_batch, views_from_clones
-from tests.msckf_sim_world import FX, rosario_extrinsics
 
 _, _T10 = rosario_extrinsics()
 R10, t10 = _T10[:3, :3], _T10[:3, 3]

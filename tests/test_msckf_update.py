@@ -9,6 +9,7 @@ from msckf.filter import MsckfFilter
 from msckf.options import WindowOptions
 from msckf.rotation import so3_exp
 from msckf.state import CloneStore
+from msckf.synthetic import iterate, make_world, rosario_extrinsics
 from msckf.update import (
     MeasurementSpec,
     ekf_update_information,
@@ -18,7 +19,6 @@ from msckf.update import (
     qr_update,
     schur_information,
 )
-from tests.msckf_sim_world import iterate, make_world, rosario_extrinsics
 
 WINDOW = WindowOptions(rotation_threshold=0.2618, translation_threshold=0.4, tracking_rate_threshold=0.5)
 

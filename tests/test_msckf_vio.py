@@ -5,9 +5,9 @@ import pytest
 
 from msckf.config import MsckfConfig, load_config
 from msckf.errors import MsckfInputError
+from msckf.synthetic import FX, make_world
 from msckf.vio import Msckf
-from tests.msckf_sim_world import FX, make_world
-from tests.test_msckf_frontend_scene import Plane, make_texture, pose, rectified_depth, render, scene_rig, stereo_pose
+from pipeline.plane_scene import Plane, make_texture, pose, rectified_depth, render, scene_rig, stereo_pose
 
 
 class _ReplayFrontend:

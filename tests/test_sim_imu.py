@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from msckf.rotation import skew
 from pipeline.calibration import rig_from_camchain
 from pipeline.paths import ROSARIO_CAMCHAIN
 from pipeline.sim.imu import ImuSimulator
@@ -32,10 +33,6 @@ def loop_traj() -> RobotTrajectory:
     return _trajectory("rosario-like-02", 15.0, stop_every_s=6.0, stop_s=1.0)
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-
-
 def test_integrating_the_true_imu_reproduces_the_trajectory(loop_traj: RobotTrajectory) -> None:
     t0, t1, dt = 3.5, 13.5, 0.002
     n = int(round((t1 - t0) / dt))
@@ -47,7 +44,7 @@ def test_integrating_the_true_imu_reproduces_the_trajectory(loop_traj: RobotTraj
     p = k.p_I[0].copy()
 
     def deriv(R_: np.ndarray, v_: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return R_ @ _skew(k.gyro[j]), R_ @ k.specific_force[j] + g, v_
+        return R_ @ skew(k.gyro[j]), R_ @ k.specific_force[j] + g, v_
 
     for i in range(n):
         j = 2 * i

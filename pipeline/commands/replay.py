@@ -24,6 +24,7 @@ from eval.errors import EvalInputError
 from eval.evaluate import EvalOptions, Evaluation, evaluate
 from eval.records import RunRecord
 from eval.trajectory import Trajectory, read_tum
+from eval.variants import DEPTH_INPAINTED, ODOMETRY
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache
@@ -99,7 +100,7 @@ def load_run(run_dir: Path) -> LoadedRun:
         eval_options = options_for(rr_rec)
     except EvalInputError as exc:
         raise AgrivioError(str(exc)) from None
-    kind = "odometry" if variant == "odometry" else "VIO"
+    kind = "odometry" if variant == ODOMETRY else "VIO"
     run = ReplayRun(name=name, stamps_s=est.stamps_s, positions=est.positions, quats_xyzw=est.quats_xyzw, kind=kind)
     gt = None
     gt_path = record.get("gt_path")
@@ -180,7 +181,7 @@ def _classify(loaded: LoadedRun, raw: DepthCache | None, rig) -> None:
     """Turn the run's msckf depth sources into replay feature classes. A depth-map feature of an inpainted run is
     "inpainted" when the run logged its depth as not measured (``feature_depth_measured``, what the filter was
     told); logs from before that field fall back to the raw cache's hole at the feature's pixel."""
-    inpainted = loaded.record.get("variant") == "depth-inpainted"
+    inpainted = loaded.record.get("variant") == DEPTH_INPAINTED
     out = {}
     for i, (uv, tl, src, measured) in loaded.raw_features.items():
         if not inpainted:

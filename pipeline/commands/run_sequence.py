@@ -22,7 +22,7 @@ from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """Options shared by run-sequence and demo."""
     p.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
-                   help="comma-separated: stereo, depth-raw, depth-inpainted, odometry (default: all)")
+                   help=f"comma-separated: {', '.join(DEFAULT_VARIANTS)} (default: all)")
     p.add_argument("--runs", type=int, default=5, help="seeded runs per variant (seeds 0..N-1; default 5)")
     p.add_argument("--inpaint", default="paper", metavar="METHOD",
                    help="inpainting method of depth-inpainted: paper, ebm, telea, ns, biharmonic, ipbasic")

@@ -2,7 +2,8 @@
 
 Every raw pixel's ray (undistorted through the camera model) is intersected with a textured plane, so a 3-D
 point, its raw pixel in either camera and its rectified depth agree exactly (up to texture interpolation).
-The module also holds the renderer's own sanity tests.
+Used by the front-end tests (tests/test_msckf_frontend.py, tests/test_msckf_vio.py) and
+benchmarks/bench_frontend.py; the renderer's own sanity tests are tests/test_plane_scene.py.
 """
 
 from __future__ import annotations
@@ -219,32 +220,3 @@ def gyro_samples(pose_fn, t0: float, t1: float, rate_hz: float, R_cam_imu: np.nd
         w_cam = cv2.Rodrigues(R_a.T @ R_b)[0].ravel() / (2 * h)
         out.append((float(t), R_cam_imu.T @ w_cam))
     return out
-
-
-# ---- sanity tests of the renderer itself -------------------------------------------------------------------------
-def test_rendered_point_lands_on_its_projection():
-    rig = scene_rig()
-    plane = Plane.wall(3.0, make_texture(0, 1024), 0.02)   # < 1 texel per pixel: plain bilinear sampling
-    T0 = pose((0.02, -0.03, 0.01), (0.1, 0.0, 0.2))
-    img0 = render(rig.left, T0, plane)
-    px = np.array([[100.0, 80.0], [340.0, 200.0], [600.0, 300.0]])
-    pts = world_points(rig.left, T0, px, plane)
-    # The same world points re-projected must give the pixels back, and the texture value there is the pixel's.
-    pc = pts @ T0[:3, :3].T + T0[:3, 3]
-    assert np.allclose(rig.left.project(pc), px, atol=1e-6)
-    tex = plane.texel(pts)
-    expected = cv2.remap(plane.texture, tex[:, :1].astype(np.float32), tex[:, 1:].astype(np.float32),
-                         cv2.INTER_LINEAR).ravel()
-    assert np.allclose(img0[px[:, 1].astype(int), px[:, 0].astype(int)], np.rint(expected), atol=1)
-
-
-def test_rectified_depth_of_a_wall_matches_the_geometry():
-    rig = scene_rig()
-    plane = Plane.wall(4.0, make_texture(0, 256), 0.05)
-    depth = rectified_depth(rig, np.eye(4), plane)
-    # At the identity pose the wall is Z = 4 in cam0; in the rectified frame Z varies slightly with R_left.
-    px = np.array([[50.0, 60.0], [300.0, 200.0]])
-    rays = np.concatenate([(px - [rig.cx, rig.cy]) / rig.fx, np.ones((2, 1))], axis=1) @ rig.R_left
-    z_cam0 = 4.0
-    z_rect = z_cam0 / rays[:, 2]
-    assert np.allclose(depth[px[:, 1].astype(int), px[:, 0].astype(int)], z_rect, rtol=1e-6)

@@ -10,7 +10,10 @@ down ~6°; 0.119 m stereo baseline). From the known trajectory we synthesise:
 * per image, :class:`~msckf.types.FeatureObservations` of the tracked landmarks: normalised cam0 / cam1
   coordinates with Gaussian noise, track ids, optional monocular or depth-map observations and outliers.
 
-Everything is seeded; the same arguments give bit-identical worlds. Used by tests/test_msckf_*.py and
+Everything is seeded; the same arguments give bit-identical worlds. The module also holds what the tests and the
+benchmark do with a world: a filter configured with the simulator's noise (:func:`matched_config`), a filter
+started from a perturbed truth (:func:`perturbed_filter`), the feed loop (:func:`iterate`) and the per-frame NEES
+of one run (:func:`nees_run`, with :func:`anees_bounds`). Used by tests/test_msckf_*.py and
 benchmarks/bench_msckf.py.
 """
 
@@ -20,8 +23,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
-from msckf.rotation import orthonormalize
+from msckf.config import MsckfConfig, load_config
+from msckf.filter import MsckfFilter
+from msckf.rotation import orthonormalize, so3_exp, so3_log
 from msckf.types import DepthSource, FeatureObservations
 
 # Rosario v1 extrinsics (data/rosario_camchain.yaml): cam0/T_cam_imu and cam1/T_cn_cnm1.
@@ -37,6 +43,8 @@ _T_CAM1_CAM0 = np.array([
     [0.0, 0.0, 0.0, 1.0]])
 FX = 351.06           # rectified focal length of the Rosario rig, px (used to express pixel noise)
 WIDTH, HEIGHT = 672, 376
+#: IMU noise densities the worlds are simulated with (and :func:`matched_config` gives the filter).
+SIM_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3)
 
 
 def rosario_extrinsics() -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +67,7 @@ class Trajectory:
     pitch_amp: float = 0.03     # rad
     height: float = 1.0         # m
     start_still: float = 0.0    # s standing still before moving (smooth start)
-    R_body_imu: np.ndarray = field(default=None)  # type: ignore[assignment]
+    R_body_imu: np.ndarray = field(default=None)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if self.R_body_imu is None:
@@ -275,3 +283,46 @@ def iterate(world: SimWorld, flt, stop_after: int | None = None):
             flt.feed_imu(world.imu_t[i], world.gyro[i], world.acc[i])
             i += 1
         yield m, flt.feed_features(obs)
+
+
+def matched_config(**overrides) -> MsckfConfig:
+    """Filter config whose noise equals the simulator's (:data:`SIM_NOISE`, 1 px feature noise), plus overrides."""
+    args = dict(SIM_NOISE, feature_noise=1.0 / FX, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, velocity_cov=1e-3)
+    args.update(overrides)
+    return load_config(args)
+
+
+def perturbed_filter(world: SimWorld, cfg: MsckfConfig, P0_diag: np.ndarray, rng: np.random.Generator) -> MsckfFilter:
+    """Filter whose initial state (IMU and extrinsics) is the truth minus an error drawn from ``P0_diag`` (21,)."""
+    d = rng.normal(size=21) * np.sqrt(P0_diag)
+    T = world.T_cam0_imu.copy()
+    R_ci = so3_exp(d[15:18]) @ T[:3, :3]                       # R_c_i = Exp(−δθ_e) R̂_c_i
+    p_ic = -T[:3, :3].T @ T[:3, 3] - d[18:21]
+    T[:3, :3], T[:3, 3] = R_ci, -R_ci @ p_ic
+    flt = MsckfFilter(cfg, T, world.T_cam1_cam0)
+    flt.initialize(world.t0, world.R0 @ so3_exp(-d[0:3]), world.p0 - d[12:15], world.v0 - d[6:9],
+                   world.b_g0 - d[3:6], world.b_a0 - d[9:12], 9.81, covariance=np.diag(P0_diag))
+    return flt
+
+
+def nees_run(world: SimWorld, flt: MsckfFilter) -> tuple[list[float], list[float]]:
+    """Feed a world into a filter; per frame, the NEES of the 3-d position and of the 3-d orientation error.
+
+    Position error ``p_true − p̂`` against the covariance block of p; orientation error
+    ``Log(R̂ᵀ R_true)`` (the filter's local perturbation) against the block of θ.
+    """
+    nees_p: list[float] = []
+    nees_t: list[float] = []
+    for m, _ in iterate(world, flt):
+        state = flt.state
+        assert state is not None, "nees_run: the filter must be initialised"
+        ep = world.p_w[m] - state.p
+        et = so3_log(state.R_w_i.T @ world.R_w_i[m])
+        nees_p.append(float(ep @ np.linalg.solve(flt.P[12:15, 12:15], ep)))
+        nees_t.append(float(et @ np.linalg.solve(flt.P[0:3, 0:3], et)))
+    return nees_p, nees_t
+
+
+def anees_bounds(n_runs: int) -> tuple[float, float]:
+    """Two-sided 95 % bounds of the run-averaged NEES of a 3-d error over ``n_runs`` runs: χ²(3N)/N quantiles."""
+    return chi2.ppf(0.025, 3 * n_runs) / n_runs, chi2.ppf(0.975, 3 * n_runs) / n_runs
