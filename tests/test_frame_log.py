@@ -192,3 +192,11 @@ def test_growing_array_appends_and_extends_past_capacity():
     for i in range(5):
         rows.append([i, i + 1, i + 2])
     assert rows.view().shape == (5, 3) and rows.view()[4, 2] == 6
+
+
+def test_fixed_mmap_threshold_is_set_where_glibc_is():
+    import platform
+
+    from pipeline.run_job import fixed_mmap_threshold
+
+    assert fixed_mmap_threshold() is (platform.system() == "Linux" and platform.libc_ver()[0] == "glibc")
