@@ -6,7 +6,7 @@ A run folder holds:
 * ``estimate.tum`` — the estimated IMU/body trajectory (base_link for ``odometry``), TUM, for evo and the report;
 * ``frames.npz`` — the per-frame log for the replay: stamps, feature counts, time per frame and the features
   themselves (raw left pixels, track length, depth source), ragged arrays flattened with an index; streamed to
-  disk while the run goes (:mod:`pipeline.frame_log`), so a run's memory does not grow with its frames.
+  disk while the run goes (:mod:`pipeline.frame_log`), so the features are not held in memory.
 
 The function :func:`run_job` is what the batch runner calls in a worker process; it runs from the job's
 :class:`pipeline.run_plan.RunPlan` (resolved settings, the MSCKF config object included: no settings file is read
