@@ -12,7 +12,8 @@ image still decodes to its full 756 kB in memory. Bags go to the cache dir and a
 simulated at each duration (cached), its depth cache filled, then each variant runs once (seed 0) in a fresh child
 process, in the pipeline's own code path (``run_matrix``, serial executor: checks, bag decode, depth read, VIO,
 evaluation, record writing); the child reports its peak RSS (``VmHWM``). Flat memory means the peak does not grow
-with the duration.
+with the duration: the table and the JSON (``growth_mb_per_1000_frames``) give the slope of the peak between the
+shortest and the longest duration. Run outputs go to a temporary folder of the system's temp dir (removed).
 """
 
 from __future__ import annotations
@@ -111,6 +112,15 @@ def whole_run_child(preset: str, duration_s: float, variant: str, out: Path) -> 
                       "wall_s": time.perf_counter() - t0, "peak_rss_mb": _status_mb("VmHWM")}))
 
 
+def growth_mb_per_1000_frames(rows: list[dict]) -> float:
+    """Peak-RSS slope between the shortest and the longest run of ``rows`` (sorted by duration), MB per 1,000
+    frames; NaN with fewer than two runs."""
+    if len(rows) < 2:
+        return float("nan")
+    frames = [r["frames"] or 0 for r in rows]
+    return (rows[-1]["peak_rss_mb"] - rows[0]["peak_rss_mb"]) / max(frames[-1] - frames[0], 1) * 1000
+
+
 def whole_run(preset: str, durations: list[float], variants: list[str], json_path: Path) -> None:
     """Peak RSS of a whole run per (duration, variant); table + JSON (see the module docstring)."""
     import tempfile
@@ -124,7 +134,7 @@ def whole_run(preset: str, durations: list[float], variants: list[str], json_pat
         prepare_sequence(spec, need, cache_dir(), inpaint_method="telea",
                          checked=check_sequence(spec, need, cache_dir(), progress=True))
         for variant in variants:
-            with tempfile.TemporaryDirectory(dir=cache_dir()) as tmp:
+            with tempfile.TemporaryDirectory(prefix="agrivio-bench-run-") as tmp:  # run outputs: system temp
                 proc = subprocess.run([sys.executable, __file__, "--run-child", preset, str(duration), variant,
                                        tmp], capture_output=True, text=True, check=True)
             res = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -134,13 +144,14 @@ def whole_run(preset: str, durations: list[float], variants: list[str], json_pat
                   f"{res['wall_s']:.0f} s ({res['status']})", flush=True)
     print(f"\n{'variant':<16} " + " ".join(f"{f'{d:g} s (MB)':>12}" for d in durations)
           + f" {'growth MB/1000 frames':>22}")
+    slopes: dict[str, float | None] = {}
     for variant in variants:
         rows = [r for r in results if r["variant"] == variant]
         peaks = [r["peak_rss_mb"] for r in rows]
-        frames = [r["frames"] or 0 for r in rows]
-        slope = (peaks[-1] - peaks[0]) / max(frames[-1] - frames[0], 1) * 1000 if len(rows) > 1 else float("nan")
+        slope = growth_mb_per_1000_frames(rows)
+        slopes[variant] = None if np.isnan(slope) else slope
         print(f"{variant:<16} " + " ".join(f"{p:>12.0f}" for p in peaks) + f" {slope:>22.1f}")
-    write_json_atomic(json_path, {"whole_run": results})
+    write_json_atomic(json_path, {"whole_run": results, "growth_mb_per_1000_frames": slopes})
     print(f"wrote {json_path}")
 
 
