@@ -59,6 +59,7 @@ FLAT_KEYS: dict[str, str] = {
     "extrinsic_translation_cov": "init",
     "feature_noise": "update",
     "gate_noise": "update",
+    "stereo_gate_noise": "update",
     "chi2_quantile": "update",
     "chi2_dof": "update",
     "robust_k": "update",

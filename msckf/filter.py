@@ -379,7 +379,7 @@ class MsckfFilter:
                                       dep.depth_rel_sigma) * depth
             has_cam1 = np.where(dm, valid & (rel <= dep.depth_motion_rel_sigma), has_cam1)
         if without_depth:
-            has_cam1 &= ~((fs.src[rr, slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[rr, slots])
+            has_cam1 &= ~self._fallback_drop(rr, slots)
         any_cam1 = np.any(has_cam1, axis=1)
         tri = self.tri_params
         thr = np.where(any_cam1, tri.feature_translation_threshold, tri.mono_translation_threshold)
@@ -407,7 +407,7 @@ class MsckfFilter:
             depth_inv = depth_w = None
             dep = self.config.depth
             if without_depth:
-                dm = (fs.src[r_i[:, None], slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[r_i[:, None], slots]
+                dm = self._fallback_drop(r_i[:, None], slots)
                 obs = obs.copy()
                 obs[..., 2:4] = np.where(dm[..., None], np.nan, obs[..., 2:4])
             elif dep.depth_row:
@@ -459,7 +459,7 @@ class MsckfFilter:
         use_depth_row = from_map if spec.depth_row else np.zeros(slots.shape, dtype=bool)
         obs, depth = fs.obs[rr, slots], fs.depth[rr, slots]
         if without_depth:
-            drop = from_map & fs.depth_filled[rr, slots]
+            drop = self._fallback_drop(rr, slots)
             obs = obs.copy()
             obs[..., 2:4] = np.where(drop[..., None], np.nan, obs[..., 2:4])
             depth = np.where(drop, np.nan, depth)
@@ -529,6 +529,12 @@ class MsckfFilter:
         inject_correction(self._initialised(), self.clones, dx)
         return used
 
+    def _fallback_drop(self, rr: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """The depth-map observations (features ``rr`` × clone ``slots``, broadcast) that ``depth_fallback`` drops:
+        the filled ones (``FeatureStore.depth_filled``)."""
+        fs = self.features
+        return (fs.src[rr, slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[rr, slots]
+
     def _regate_without_depth(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, ok: np.ndarray,
                               spec: MeasurementSpec, accepted: list[FeatureBatch], acc_rows_count: list[np.ndarray],
                               st: FrameStats) -> int:
@@ -541,9 +547,7 @@ class MsckfFilter:
         order = self._order()
         cols, valid = self._compact(clone_mask)
         sl = order[cols]
-        fs = self.features
-        has_fill = np.any((fs.src[rows[:, None], sl] == DepthSource.DEPTH_MAP) & fs.depth_filled[rows[:, None], sl]
-                          & valid, axis=1)
+        has_fill = np.any(self._fallback_drop(rows[:, None], sl) & valid, axis=1)
         retry = np.flatnonzero(~ok & has_fill)
         if len(retry) == 0:
             return 0

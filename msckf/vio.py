@@ -15,6 +15,7 @@ Feature observations can also be fed directly with :meth:`Msckf.add_features` (n
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -32,6 +33,15 @@ VARIANTS = ("stereo", "depth")
 
 class _Frontend(Protocol):
     def add_imu(self, t_s: float, gyro_rad_s: np.ndarray) -> None: ...
+
+
+def filter_config(config: MsckfConfig, variant: str) -> MsckfConfig:
+    """The back end's config for a front end: the ``stereo`` front end gates with ``update.stereo_gate_noise``
+    (when > 0) in place of ``update.gate_noise``; the ``depth`` front end uses the config as it is."""
+    u = config.update
+    if variant == "stereo" and u.stereo_gate_noise > 0:
+        return replace(config, update=replace(u, gate_noise=u.stereo_gate_noise))
+    return config
 
 
 class Msckf:
@@ -58,7 +68,7 @@ class Msckf:
         self.rig = rig
         self.variant = variant
         self.seed = int(seed)
-        self.filter = MsckfFilter(self.config, rig.T_left_imu, rig.T_right_left)
+        self.filter = MsckfFilter(filter_config(self.config, variant), rig.T_left_imu, rig.T_right_left)
         if frontend is None:
             from msckf.frontend import DepthFrontend, StereoFrontend  # imported lazily (OpenCV set-up)
             cls = StereoFrontend if variant == "stereo" else DepthFrontend

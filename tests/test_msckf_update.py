@@ -391,3 +391,16 @@ def test_gate_noise_sets_the_pixel_rows_sigma_and_leaves_the_depth_row_its_own()
     assert 0.93 < calibrated.mean() < 1.07
     assert gating_chi2(P, b, sig_f).mean() / dof.mean() < 0.5
     np.testing.assert_array_equal(gating_chi2(P, b, sig_f, sig_f), gating_chi2(P, b, sig_f))
+
+
+def test_stereo_front_end_gates_with_its_own_noise_and_the_depth_front_end_keeps_the_config():
+    """``msckf.vio.filter_config``: the stereo back end gets ``gate_noise = stereo_gate_noise``; the depth back end
+    gets the config unchanged; ``stereo_gate_noise = 0`` falls back to ``gate_noise``."""
+    from msckf.vio import filter_config
+
+    cfg = load_config({"stereo_gate_noise": 0.0005, "gate_noise": 0.0})
+    assert filter_config(cfg, "stereo").update.gate_noise == 0.0005
+    assert filter_config(cfg, "stereo").update.feature_noise == cfg.update.feature_noise
+    assert filter_config(cfg, "depth") is cfg
+    off = load_config({"stereo_gate_noise": 0.0, "gate_noise": 0.002})
+    assert filter_config(off, "stereo").update.gate_noise == 0.002
