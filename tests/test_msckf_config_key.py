@@ -4,8 +4,8 @@ The pinned hashes were computed from the flat ``MsckfConfig`` of commit e3efd1d 
 option types): a change here would silently invalidate every cached run record. A new parameter changes them on
 purpose (it enters the key): ``depth_track_bias`` (issue 17) moved them from 1c8db5cba7e9d24e / f7db3973c980b9ab,
 ``depth_fallback`` (issue 17) from 8a3ac494bea3776b / 3573a898843efcdc, its default turned on (stop 25) from
-b0361905f190c692 / 5d6195b13573cdac, ``gate_noise`` (issue 17, stop 26) from d0fd4320c2ff2890 / 167539a90d36ccf4, and ``stereo_gate_noise`` (on by
-default, stop 26) from 0f0ab2d474ac9d7e / 1878cb1caddbe816.
+b0361905f190c692 / 5d6195b13573cdac, ``gate_noise`` (issue 17, stop 26) from d0fd4320c2ff2890 /
+167539a90d36ccf4, and ``stereo_gate_noise`` (on by default, stop 26) from 0f0ab2d474ac9d7e / 1878cb1caddbe816.
 """
 
 from __future__ import annotations
