@@ -38,23 +38,10 @@ import numpy as np  # noqa: E402
 
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.depth_oracle import standard_rungs  # noqa: E402
-from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder, stereo_reference  # noqa: E402
+from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
+from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
-
-
-def _fmt(res: dict, seeds: list[int]) -> list[str]:
-    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | gated out | depth fallback "
-             "| failed |",
-             "|---|---|---|---|---|---|---|---|"]
-    for name, r in res.items():
-        a = [r["ate"].get(s, float("nan")) for s in seeds]
-        lines.append(f"| {name} | {np.nanmean(a):.4f} | {' '.join(f'{x:.4f}' for x in a)} | "
-                     f"{r.get('depth_fraction', float('nan')):.2f} | "
-                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {r.get('gated_out', '')} | "
-                     f"{r.get('depth_fallback', '')} | "
-                     f"{len(r['failed'])} |")
-    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,41 +72,31 @@ def main(argv: list[str] | None = None) -> int:
     for p in args.presets:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
-        prep = prepare_oracle(src.sim_dir, cache, args.methods, config, args.seeds, args.max_frames,
-                              far_open_radius_px=0 if args.no_far_open else args.far_open_radius)
         rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]
-        res = run_ladder(prep, config, rungs=rungs, use_sigma=not args.no_sigma)
-        if not args.no_stereo:
-            res["stereo"] = stereo_reference(src.sim_dir, config, args.seeds, prep, args.max_frames)
+        res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,
+                                             use_sigma=not args.no_sigma, stereo=not args.no_stereo,
+                                             max_frames=args.max_frames,
+                                             far_open_radius_px=0 if args.no_far_open else args.far_open_radius)
         results[preset] = res
-        extra[preset] = {"truth": prep["truth_stats"], "depth_error_at_tracked_points": prep["depth_errors"]}
         print(f"\n### {preset} ({len(args.seeds)} seeds, {args.duration:g} s; config {overrides or 'default'}; "
               f"σ to the filter: {'no' if args.no_sigma else 'yes'}; far-field fills: "
               f"{'kept' if args.no_far_open else 'dropped'}"
               f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'})")
-        print("\n".join(_fmt(res, args.seeds)))
-        tri = np.mean([v["triangulated"] for v in prep["truth_stats"].values()])
+        print("\n".join(rung_table(res, args.seeds)))
+        tri = np.mean([v["triangulated"] for v in extra[preset]["truth"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "
               f"3-D point against the true poses, or outside the depth range)")
-        for m, e in prep["depth_errors"].items():
+        for m, e in extra[preset]["depth_error_at_tracked_points"].items():
             print(f"depth at tracked points, {m}: median |rel. error| {e['median_abs_rel']:.2%}, "
                   f"median rel. error {e['median_rel']:+.2%} (n = {e['n']})")
     ok, bad = ladder_verdict(results)
     for b in bad:
         print("violation:", b)
-    checks = {}
-    for preset, res in results.items():
-        if "stereo" in res and "exact-everywhere" in res:
-            ex = np.mean(list(res["exact-everywhere"]["ate"].values()) or [np.nan])
-            raw = np.mean(list(res["depth-raw"]["ate"].values()) or [np.nan])
-            st = np.mean(list(res["stereo"]["ate"].values()) or [np.nan])
-            checks[preset] = {"exact_le_raw": bool(ex <= raw), "exact_within_10pct_of_stereo": bool(ex <= 1.1 * st),
-                              "exact": ex, "raw": raw, "stereo": st}
-            print(f"{preset}: exact-everywhere {ex:.4f} m vs depth-raw {raw:.4f} m vs stereo {st:.4f} m "
-                  f"(exact ≤ raw: {'yes' if ex <= raw else 'no'}; within 10 % of stereo: "
-                  f"{'yes' if ex <= 1.1 * st else 'no'})")
+    checks = ladder_checks(results)
+    for preset, c in checks.items():
+        print(check_line(preset, c))
     print(f"ladder monotone: {'yes' if ok else 'no'}")
     out = args.json or cache / "benchmarks" / "bench_depth_oracle.json"
     write_json_atomic(out, {"args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},

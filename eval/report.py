@@ -39,6 +39,7 @@ def metric_note(after: str = AFTER) -> str:
 
 
 METRIC_NOTE = metric_note()
+LADDER_TITLE = "Is the instrument sound? The depth oracle ladder (simulated sequences)"
 RPE_NOTE = ("RPE = translation RMSE of the relative pose error over segments of that travelled distance (pairs on "
             "the ground truth's path; mean ± sample std over the successful runs, metres), in brackets the mean drift "
             "(error / distance, %). Only distances up to ¾ of a sequence's path are evaluated.")
@@ -66,6 +67,8 @@ class Report:
     code_versions: tuple[str, ...] = ()
     sections: tuple[tuple[str, str], ...] = field(default_factory=tuple)
     after_variant: str = AFTER
+    #: The depth oracle ladder (Markdown), shown right after Table 2: whether the instrument behind it is sound.
+    ladder_md: str | None = None
 
     # ---- tables -------------------------------------------------------------------------------------------------
     def _tables(self) -> tuple[Table, Table]:
@@ -86,6 +89,8 @@ class Report:
         out += ["## Before / after depth inpainting (paper Table 2 layout)", ""]
         out += [markdown_table(t2) if self.rows else "_No `depth-raw` / `depth-inpainted` runs found._\n", "",
                 metric_note(self.after_variant), ""]
+        if self.ladder_md:
+            out += [f"## {LADDER_TITLE}", "", self.ladder_md.strip(), ""]
         out += ["## All variants (five-run statistics)", "", markdown_table(tv), ""]
         for note in self.notes:
             out += [f"> {note}", ""]
@@ -111,6 +116,9 @@ class Report:
         parts.append(_html_table(t2, failed_col=None) if self.rows else
                      "<p><em>No <code>depth-raw</code> / <code>depth-inpainted</code> runs found.</em></p>")
         parts.append(f"<p class='note'>{_inline(metric_note(self.after_variant))}</p>")
+        if self.ladder_md:
+            parts.append(f"<h2>{html.escape(LADDER_TITLE)}</h2>")
+            parts.append(markdown_to_html(self.ladder_md))
         parts.append("<h2>All variants (five-run statistics)</h2>")
         parts.append(_html_table(tv, failed_col=3))
         for note in self.notes:
@@ -251,7 +259,7 @@ def build_report(records: Sequence[RunRecord],
                  evaluations: Mapping[tuple[str, str], Evaluation] | None = None,
                  inpaint_bench_md: str | None = None, title: str = "agrivio: depth inpainting vs VIO accuracy",
                  notes: Sequence[str] = (), sections: Sequence[tuple[str, str]] = (),
-                 after: str | None = None) -> Report:
+                 after: str | None = None, ladder_md: str | None = None) -> Report:
     """Statistics, the before/after comparison and the figures.
 
     Args:
@@ -262,6 +270,7 @@ def build_report(records: Sequence[RunRecord],
         notes: lines shown as call-outs (e.g. records that could not be read).
         after: the displayed variant compared with ``depth-raw`` in Table 2 (e.g. ``depth-inpainted[telea]``);
             default: the paper's method when it ran, else the first other inpainting method (alphabetical).
+        ladder_md: the depth oracle ladder (Markdown, e.g. ``pipeline.oracle_stage``'s), shown after Table 2.
     """
     groups = summarize(records)
     # "After" is the paper's method when it ran; otherwise the one other inpainting method that ran (if any).
@@ -303,4 +312,5 @@ def build_report(records: Sequence[RunRecord],
     instrument = instrument_table(records)
     if instrument:
         sections = [*sections, ("Depth given to the filter and its χ² gate", instrument)]
-    return Report(title, groups, rows, figures, inpaint_bench_md, tuple(notes), versions, tuple(sections), after)
+    return Report(title, groups, rows, figures, inpaint_bench_md, tuple(notes), versions, tuple(sections), after,
+                  ladder_md)

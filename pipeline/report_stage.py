@@ -22,6 +22,7 @@ from eval.variants import DEPTH_INPAINTED, ODOMETRY
 from pipeline.atomic import atomic_path, write_json_atomic, write_text_atomic
 from pipeline.errors import AgrivioError
 from pipeline.external_tracks import evaluate_external, external_record, load_external
+from pipeline.oracle_stage import read_ladder_markdown
 from pipeline.run_identity import collapse_duplicates, inputs_section
 
 BENCH_NAMES = ("inpaint_bench.md", "inpaint_bench.json")
@@ -196,7 +197,8 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
     """Build the comparison report of every run record under ``runs_dir`` (plus the ``external`` TUM specs,
     ``NAME[@SEQUENCE]=path``) and write ``report.md``, ``report.html``, ``summary.json`` and ``figures/`` into
     ``out`` (default ``runs_dir/report``), each atomically. Duplicate runs are collapsed with a warning on stderr.
-    ``after_method``: the inpainting method of Table 2's "after" (default: the paper's when it ran).
+    ``after_method``: the inpainting method of Table 2's "after" (default: the paper's when it ran). A depth oracle
+    ladder written into ``runs_dir`` (``pipeline.oracle_stage.write_ladder``) is shown beside Table 2.
 
     Raises:
         AgrivioError: no folder, no run records, a conflicting duplicate, a bad external spec.
@@ -220,7 +222,8 @@ def write_comparison_report(runs_dir: Path, out: Path | None = None, title: str 
         evaluations, more = load_evaluations(found)
         notes += more
     report = build_report([r for _, r in found], evaluations, _bench_markdown(runs_dir), title=title, notes=notes,
-                          sections=[section] if section else [], after=_after_variant(after_method))
+                          sections=[section] if section else [], after=_after_variant(after_method),
+                          ladder_md=read_ladder_markdown(runs_dir))
     fig_dir = out / "figures"
     for fig in report.figures:
         with atomic_path(fig_dir / f"{fig.name}.png", suffix=".png") as tmp:

@@ -105,11 +105,17 @@ def test_demo_command_small(sim_cache, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("AGRIVIO_CACHE", str(sim_cache))
     out = tmp_path / "demo"
     assert main(["demo", "--presets", "tiny", "--runs", "1", "--variants", "depth-raw,odometry", "--no-bench",
-                 "--out", str(out), "--workers", "1"]) == 0
+                 "--out", str(out), "--workers", "1", "--ladder-seeds", "1"]) == 0
     printed = capsys.readouterr().out
-    assert "report:" in printed and "replay:" in printed
+    assert "report:" in printed and "replay:" in printed and "depth oracle ladder:" in printed
     assert (out / "report" / "report.html").is_file()
     assert (out / "replay" / "tiny.rrd").is_file()
+    md = (out / "report" / "report.md").read_text()
+    ladder = json.loads((out / "depth_oracle.json").read_text())
+    assert set(ladder["results"]) == {"tiny"} and ladder["seeds"] == [0] and ladder["methods"] == ["paper"]
+    assert {"depth-raw", "exact-everywhere", "inpainted[paper]", "stereo"} <= set(ladder["results"]["tiny"])
+    verdict = "**ladder monotone: yes**" if ladder["monotone"] else "**ladder monotone: no**"
+    assert md.index("## Before / after") < md.index(verdict) < md.index("## All variants")
 
 
 def test_experiment_command_two_methods_one_matrix_and_resumes(sim_cache, tmp_path, monkeypatch, capsys):

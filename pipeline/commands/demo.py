@@ -6,7 +6,9 @@
    ``DEFAULT_DEMO_INPAINT``); ``--inpaint telea`` (or another method) compares another one;
 3. runs every variant (stereo, depth-raw, depth-inpainted, odometry) five times per sequence;
 4. benchmarks the inpainting methods, the paper's included, on simulated frames with exact depth (Table 1);
-5. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
+5. runs the depth oracle ladder on the same sequences (3 seeds: the same tracks given raw, exact, noisy and
+   inpainted depth — is the instrument behind Table 2 sound?), shown beside Table 2;
+6. writes the comparison report (HTML + Markdown: the paper's Table 2 and every variant) and a rerun replay.
 
 The default sizes finish in about 8 minutes on a 2-core machine (measured 8.1 min with the paper's method in the
 VIO loop after the compiled fusion network, simulation cached, on a shared machine, install excluded; 12.2 min
@@ -24,6 +26,7 @@ from pipeline.atomic import write_text_atomic
 from pipeline.commands.report_summary import print_comparison
 from pipeline.commands.run_sequence import parse_variants
 from pipeline.errors import AgrivioError
+from pipeline.oracle_stage import remove_ladder
 from pipeline.paths import cache_dir
 from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
@@ -55,9 +58,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: all cores)")
     p.add_argument("--no-bench", action="store_true", help="skip the inpainting benchmark")
     p.add_argument("--no-replay", action="store_true", help="skip the rerun replay")
+    p.add_argument("--no-ladder", action="store_true", help="skip the depth oracle ladder")
+    p.add_argument("--ladder-seeds", type=int, default=LADDER_SEEDS,
+                   help=f"seeds of the depth oracle ladder (default {LADDER_SEEDS})")
     p.set_defaults(func=run)
 
 
+#: Seeds of the demo's depth oracle ladder (each one records the depth front end's tracks once per sequence).
+LADDER_SEEDS = 3
 #: The demo's inpainting benchmark: the paper's method (fast and greedy), the energy-based ablation and baselines.
 DEMO_BENCH_METHODS = ("paper", "paper-greedy", "ebm", "telea", "ns", "biharmonic", "ipbasic")
 
@@ -78,6 +86,32 @@ def _inpaint_bench(out: Path) -> Path | None:
         return None
     write_text_atomic(out / "inpaint_bench.md", md)
     return bench_dir
+
+
+def _oracle_ladder(out: Path, specs: list[SequenceSpec], method: str, n_seeds: int, duration_s: float) -> Path | None:
+    """The depth oracle ladder of the demo's simulated sequences (``pipeline.oracle_stage``), written into ``out``
+    for the report. Sequences without simulator truth are skipped; a failure is reported in one line."""
+    from pipeline.depth_oracle_run import default_config
+    from pipeline.oracle_stage import run_ladders, write_ladder
+    from pipeline.sources import resolve_source
+
+    sim_dirs: dict[str, Path] = {}
+    for spec in specs:
+        src = resolve_source(spec.source, duration_s=spec.duration_s, seed=spec.sim_seed, cache_root=cache_dir(),
+                             progress=False)
+        if src.sim_dir is not None:
+            sim_dirs[spec.name or src.name] = src.sim_dir
+    if not sim_dirs:
+        return None
+    try:
+        result = run_ladders(sim_dirs, cache_dir(), [method], default_config(), list(range(n_seeds)),
+                             duration_s=duration_s)
+    except (AgrivioError, OSError, ValueError) as exc:
+        print(f"depth oracle ladder failed ({exc}); the report goes on without it")
+        return None
+    ok, _ = result.verdict
+    print(f"  ladder monotone: {'yes' if ok else 'no'} ({result.wall_s / 60:.1f} min)")
+    return write_ladder(result, out)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,6 +138,16 @@ def run(args: argparse.Namespace) -> int:
         print("\ninpainting benchmark (simulated frames with exact depth, real SGBM hole masks) ...")
         bench_dir = _inpaint_bench(out)
         timings["bench_s"] = time.perf_counter() - t0
+    ladder_md = None
+    if args.no_ladder:
+        remove_ladder(out)  # a ladder of an earlier demo must not stand beside these runs
+    else:
+        t0 = time.perf_counter()
+        print("\ndepth oracle ladder (same tracks; raw, exact, noisy and inpainted depth) ...")
+        ladder_md = _oracle_ladder(out, specs, args.inpaint, args.ladder_seeds, duration)
+        if ladder_md is None:
+            remove_ladder(out)
+        timings["ladder_s"] = time.perf_counter() - t0
     comparison = write_comparison_report(out, out / "report")
     print_comparison(comparison)
     report_dir = comparison.out
@@ -121,8 +165,11 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t_start
     print(f"\n{len(records)} runs ({n_failed} failed) in {wall / 60:.1f} min "
           f"(runs {timings['runs_s'] / 60:.1f} min" + (f", benchmark {timings['bench_s'] / 60:.1f} min"
-                                                        if "bench_s" in timings else "") + ")")
+                                                        if "bench_s" in timings else "")
+          + (f", ladder {timings['ladder_s'] / 60:.1f} min" if "ladder_s" in timings else "") + ")")
     print(f"report:   {report_dir / 'report.html'}  (Markdown: {report_dir / 'report.md'})")
+    if ladder_md is not None:
+        print(f"depth oracle ladder: {ladder_md} (JSON beside it)")
     if bench_dir is not None:
         print(f"inpainting benchmark: {bench_dir / 'results.md'}, figure grid {bench_dir / 'grid.png'}")
     for path in replays:

@@ -1,0 +1,194 @@
+"""The oracle-ladder stage: the depth oracle ladder of simulated sequences as one result object, its tables and
+its files (``depth_oracle.md`` / ``depth_oracle.json`` beside the run records, where the report stage finds them).
+
+The ladder asks whether the depth-aided VIO gets more accurate when its depth gets more accurate (issue 17): on
+every simulated sequence the depth front end's tracks are recorded once per seed and only the depth attached to
+them changes from rung to rung (``pipeline.depth_oracle``, ``pipeline.depth_oracle_run``). A before/after
+inpainting number is only worth reading if this ladder is monotone; the report shows it beside Table 2.
+
+Used by ``benchmarks/bench_depth_oracle.py`` (all options) and ``agrivio demo`` (its own sequences, default rungs).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msckf.config import MsckfConfig
+from pipeline.atomic import write_json_atomic, write_text_atomic
+from pipeline.depth_oracle import Rung, standard_rungs
+from pipeline.depth_oracle_run import ladder_verdict, prepare_oracle, run_ladder, stereo_reference
+
+__all__ = ["LADDER_MD", "LADDER_JSON", "LadderResult", "rung_table", "ladder_checks", "check_line", "sequence_ladder",
+           "run_ladders", "write_ladder", "remove_ladder", "read_ladder_markdown"]
+
+LADDER_MD = "depth_oracle.md"
+LADDER_JSON = "depth_oracle.json"
+#: Rungs shown in the report's compact table, in this order (the others stay in the JSON and the benchmark).
+REPORT_ORDER = ("exact-everywhere", "exact@raw-valid", "exact+1%", "exact+3%", "exact+10%", "depth-raw@tracked-point",
+                "depth-raw", "mono", "stereo")
+
+
+def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:
+    a = [r["ate"][s] for s in seeds if s in r["ate"]]
+    return float(np.mean(a)) if a else float("nan")
+
+
+def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> list[str]:
+    """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
+    carry a depth, the χ² gate's median γ/dof, features gated out, depth fall-backs, failed runs."""
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | gated out | depth fallback "
+             "| failed |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, r in res.items():
+        a = [r["ate"].get(s, float("nan")) for s in seeds]
+        lines.append(f"| {name} | {np.nanmean(a) if np.isfinite(a).any() else float('nan'):.4f} | "
+                     f"{' '.join(f'{x:.4f}' for x in a)} | "
+                     f"{r.get('depth_fraction', float('nan')):.2f} | "
+                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {r.get('gated_out', '')} | "
+                     f"{r.get('depth_fallback', '')} | "
+                     f"{len(r['failed'])} |")
+    return lines
+
+
+def ladder_checks(results: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """Issue 17's two absolute checks per sequence (where the rungs ran): exact-everywhere ≤ depth-raw, and
+    exact-everywhere within 10 % of the stereo front end (means over seeds, m)."""
+    checks: dict[str, dict[str, Any]] = {}
+    for seq, res in results.items():
+        if "stereo" in res and "exact-everywhere" in res and "depth-raw" in res:
+            ex, raw, st = (float(np.mean(list(res[k]["ate"].values()) or [np.nan]))
+                           for k in ("exact-everywhere", "depth-raw", "stereo"))
+            checks[seq] = {"exact_le_raw": bool(ex <= raw), "exact_within_10pct_of_stereo": bool(ex <= 1.1 * st),
+                           "exact": ex, "raw": raw, "stereo": st}
+    return checks
+
+
+def check_line(seq: str, c: Mapping[str, Any]) -> str:
+    """One sequence's :func:`ladder_checks` as a sentence."""
+    return (f"{seq}: exact-everywhere {c['exact']:.4f} m vs depth-raw {c['raw']:.4f} m vs stereo {c['stereo']:.4f} m "
+            f"(exact ≤ raw: {'yes' if c['exact_le_raw'] else 'no'}; within 10 % of stereo: "
+            f"{'yes' if c['exact_within_10pct_of_stereo'] else 'no'})")
+
+
+@dataclass(frozen=True)
+class LadderResult:
+    """The ladder of several simulated sequences.
+
+    ``results``: sequence → rung → ``{"ate": {seed: m}, "failed": {seed: reason}, "chain", "order",
+    "depth_fraction", "gated_out", "depth_fallback", "gamma_per_dof_median"}``; ``extra``: sequence → truth
+    coverage and the depth error of each map at tracked points.
+    """
+
+    results: dict[str, dict[str, dict[str, Any]]]
+    seeds: tuple[int, ...]
+    methods: tuple[str, ...]
+    duration_s: float | None = None
+    extra: dict[str, dict[str, Any]] = field(default_factory=dict)
+    wall_s: float = 0.0
+    code_version: str = ""
+
+    @property
+    def verdict(self) -> tuple[bool, list[str]]:
+        """(monotone, violations) of :func:`pipeline.depth_oracle_run.ladder_verdict`."""
+        return ladder_verdict(self.results)
+
+    def to_dict(self) -> dict[str, Any]:
+        ok, bad = self.verdict
+        return {"seeds": list(self.seeds), "methods": list(self.methods), "duration_s": self.duration_s,
+                "results": self.results, "extra": self.extra, "monotone": ok, "violations": bad,
+                "checks": ladder_checks(self.results), "wall_s": self.wall_s, "code_version": self.code_version}
+
+    def markdown(self) -> str:
+        """The report's ladder section: one compact table (mean ATE RMSE per rung and sequence), the verdict, the
+        absolute checks and the violations."""
+        seqs = list(self.results)
+        names = [n for n in REPORT_ORDER if any(n in self.results[s] for s in seqs)]
+        names += [n for s in seqs for n in self.results[s] if n not in names and n not in REPORT_ORDER]
+        names = list(dict.fromkeys(names))
+        head = "| depth given to the filter (same tracks in every row) | " + " | ".join(seqs) + " |"
+        lines = [head, "|---|" + "---|" * len(seqs)]
+        for n in names:
+            cells = []
+            for s in seqs:
+                r = self.results[s].get(n)
+                if r is None:
+                    cells.append("")
+                    continue
+                cell = f"{_mean_ate(r, self.seeds):.4f}"
+                if r["failed"]:
+                    cell += f" ({len(r['failed'])} failed)"
+                cells.append(cell)
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
+        ok, bad = self.verdict
+        dur = f"{self.duration_s:g} s sequences, " if self.duration_s else ""
+        out = ["ATE RMSE (m, mean over seeds " + ", ".join(map(str, self.seeds)) + f"; {dur}against the simulator's "
+               "true antenna positions, SE(3)). Each row replaces only the depth values attached to the same "
+               "recorded tracks; *exact* is the tracked 3-D point's true depth, not the depth map's value at the "
+               "pixel (a corner on a depth edge reads the background). `inpainted[M]` is what a depth-inpainted "
+               "run gets; `mono` carries no depth at all.", "", *lines, "",
+               f"**ladder monotone: {'yes' if ok else 'no'}** (ATE must not grow as the depth error falls, within "
+               "2 standard errors of the paired per-seed differences + 3 %)."]
+        for seq, c in ladder_checks(self.results).items():
+            out.append(f"- {check_line(seq, c)}")
+        out += [f"- violation: {b}" for b in bad]
+        if self.code_version:
+            out += ["", f"Computed with `{self.code_version}` in {self.wall_s / 60:.1f} min "
+                        "(`benchmarks/bench_depth_oracle.py` runs the same ladder with every option)."]
+        return "\n".join(out) + "\n"
+
+
+def sequence_ladder(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
+                    seeds: Sequence[int], *, rungs: list[Rung] | None = None, use_sigma: bool = True,
+                    stereo: bool = True, max_frames: int | None = None,
+                    far_open_radius_px: int | None = None) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """The ladder of one simulated sequence folder: (rung → stats, extra). ``rungs`` default to
+    :func:`standard_rungs` of ``methods``; ``stereo`` adds the stereo front end on the same seeds."""
+    prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames,
+                          far_open_radius_px=far_open_radius_px)
+    res = run_ladder(prep, config, rungs=rungs or standard_rungs(methods), use_sigma=use_sigma)
+    if stereo:
+        res["stereo"] = stereo_reference(sim_dir, config, seeds, prep, max_frames)
+    extra = {"truth": prep["truth_stats"], "depth_error_at_tracked_points": prep["depth_errors"]}
+    return res, extra
+
+
+def run_ladders(sim_dirs: Mapping[str, Path], cache_root: Path, methods: Sequence[str], config: MsckfConfig,
+                seeds: Sequence[int], duration_s: float | None = None, progress: bool = True) -> LadderResult:
+    """The default ladder (standard rungs + stereo) of every named simulated sequence folder."""
+    t0 = time.perf_counter()
+    results: dict[str, dict[str, dict[str, Any]]] = {}
+    extra: dict[str, dict[str, Any]] = {}
+    for name, sim_dir in sim_dirs.items():
+        if progress:
+            print(f"  depth oracle ladder: {name} ({len(seeds)} seeds) ...", flush=True)
+        results[name], extra[name] = sequence_ladder(sim_dir, cache_root, methods, config, seeds)
+    from pipeline.version import code_version
+
+    return LadderResult(results, tuple(int(s) for s in seeds), tuple(methods), duration_s, extra,
+                        time.perf_counter() - t0, code_version())
+
+
+def write_ladder(result: LadderResult, out_dir: Path) -> Path:
+    """Write ``depth_oracle.md`` and ``depth_oracle.json`` into ``out_dir`` atomically; returns the Markdown path."""
+    write_json_atomic(out_dir / LADDER_JSON, result.to_dict())
+    md = out_dir / LADDER_MD
+    write_text_atomic(md, result.markdown())
+    return md
+
+
+def remove_ladder(out_dir: Path) -> None:
+    """Remove the ladder files of ``out_dir`` (when a new set of runs there has no ladder of its own)."""
+    for name in (LADDER_MD, LADDER_JSON):
+        (out_dir / name).unlink(missing_ok=True)
+
+
+def read_ladder_markdown(runs_dir: Path) -> str | None:
+    """The ladder section written by :func:`write_ladder` directly in ``runs_dir`` (None if there is none)."""
+    path = runs_dir / LADDER_MD
+    return path.read_text(encoding="utf-8") if path.is_file() else None
