@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -85,7 +86,8 @@ def write_ground_truth(root: Path, world: SequenceWorld, timetable: StreamTimeta
     write_text_atomic(root / ANTENNA_TRUE_GT_FILE, format_tum_rows(gps_ns / 1e9, gps.true_enu, ident,
                                                                    "true GPS antenna positions, ENU, same origin "
                                                                    "as gt_body.tum\ntimestamp[s] x y z qx qy qz qw"))
-    truth = {"imu_stamp_ns": imu_ns, "p_E": tr.p_E, "q_E_xyzw": tr.q_E, "v_E": tr.v_E, "gyro_true": tr.gyro_true,
+    truth: dict[str, Any] = {
+             "imu_stamp_ns": imu_ns, "p_E": tr.p_E, "q_E_xyzw": tr.q_E, "v_E": tr.v_E, "gyro_true": tr.gyro_true,
              "accel_true": tr.accel_true, "gyro_meas": imu_rows[:, 1:4], "accel_meas": imu_rows[:, 4:7],
              "bias_gyro": imu_rows[:, 7:10], "bias_accel": imu_rows[:, 10:13], "frame_stamp_ns": timetable.cam_ns,
              "T_E_rectleft": frames.cam_poses_E, "R_E_F": world.R_EF, "p_F_origin": world.p_F0,
