@@ -24,28 +24,22 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from pipeline.atomic import atomic_path, write_json_atomic
 from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize_mm
+from pipeline.png_codec import PNG_COMPACT, decode_png, encode_png
 
 DEFAULT_CHUNK_SIZE = 32
-_PNG_FLAGS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+_WHERE = "depth cache"
 
 
 def _png(img: np.ndarray) -> np.ndarray:
-    ok, buf = cv2.imencode(".png", img, _PNG_FLAGS)
-    if not ok:  # pragma: no cover - OpenCV failure
-        raise RuntimeError("PNG encoding failed")
-    return buf.reshape(-1)
+    return encode_png(img, PNG_COMPACT)
 
 
 def _unpng(buf: np.ndarray) -> np.ndarray:
-    img = cv2.imdecode(np.asarray(buf, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError("corrupt PNG in depth cache")
-    return img
+    return decode_png(buf, _WHERE)
 
 
 @dataclass(frozen=True)

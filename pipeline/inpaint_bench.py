@@ -16,7 +16,6 @@ methods as columns, one block per metric, an average row) and a PNG figure grid.
 
 from __future__ import annotations
 
-import io
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -27,6 +26,7 @@ import numpy as np
 
 from eval.depth_metrics import DEFAULT_PEAK_M, DepthMetrics, depth_metrics
 from inpaint import METHODS, inpaint
+from pipeline.png_codec import encode_png_bytes
 from pipeline.rosario_layout import RATE_CAMERA_HZ
 
 DEFAULT_METHODS = ("paper", "paper-greedy", "ebm", "telea", "ns", "biharmonic", "ipbasic")
@@ -232,10 +232,7 @@ def figure_png(res: BenchResult, max_rows: int = 4, error_max_m: float = 1.0) ->
     scale = min(1.0, 2400 / grid.shape[1])
     if scale < 1.0:
         grid = cv2.resize(grid, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    ok, buf = cv2.imencode(".png", grid)
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return io.BytesIO(buf.tobytes()).getvalue()
+    return encode_png_bytes(grid, None)
 
 
 # ------------------------------------------------------------------------------------------------ frame sources

@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline import replay_layout as lay
 from pipeline.atomic import atomic_path
+from pipeline.png_codec import PNG_COMPACT, encode_png_bytes
 
 
 @dataclass
@@ -341,14 +342,9 @@ def feature_radii(sigma_rel: np.ndarray | None, n: int) -> np.ndarray:
 def _depth_png(mm: np.ndarray, colormap: str, range_mm: tuple[float, float]) -> rr.EncodedDepthImage:
     """(h, w) uint16 millimetres (0 = none) as a 16-bit PNG depth image, rounded to whole centimetres (the
     viewer shows depth to 1 cm; millimetre noise would triple the file)."""
-    import cv2
-
     cm = np.where(mm > 0, np.maximum(10, np.round(mm.astype(np.float64) / 10.0) * 10), 0).astype(np.uint16)
-    ok, png = cv2.imencode(".png", cm, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-    if not ok:
-        raise ValueError("replay: PNG encoding of a depth map failed")
-    return rr.EncodedDepthImage(png.tobytes(), media_type="image/png", meter=1000.0, colormap=colormap,
-                                depth_range=range_mm)
+    return rr.EncodedDepthImage(encode_png_bytes(cm, PNG_COMPACT), media_type="image/png", meter=1000.0,
+                                colormap=colormap, depth_range=range_mm)
 
 
 def depth_mm(depth_m: np.ndarray) -> np.ndarray:

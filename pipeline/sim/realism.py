@@ -38,6 +38,7 @@ import numpy as np
 
 from msckf.camera import StereoRig
 from pipeline.depth import DepthParams, compute_depth
+from pipeline.png_codec import encode_png_bytes
 from pipeline.sim.render import LABEL_CANOPY, LABEL_LEAF, LABEL_SKY
 
 HOLE_CLASSES = ("sky", "far", "border", "occlusion", "glare", "textureless", "leaves", "other")
@@ -239,10 +240,7 @@ def gallery_png(left: np.ndarray, right: np.ndarray, gt: np.ndarray, est: np.nda
     bottom = np.concatenate([tag(colour_depth(gt), "exact depth (rectified left)"),
                              tag(colour_depth(est), "SGBM depth (depth stage)"), tag(colour_causes(causes),
                                                                                      "SGBM holes by cause")], 1)
-    ok, buf = cv2.imencode(".png", np.concatenate([top, bottom], 0))
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+    return encode_png_bytes(np.concatenate([top, bottom], 0), None)
 
 
 def markdown(summaries: list[dict[str, Any]], note: str = "") -> str:
