@@ -50,9 +50,10 @@ from pipeline.plane_scene import (
     scene_rig,
     stereo_pose,
 )
+from pipeline.rosario_layout import RATE_CAMERA_HZ
 
-RATE_HZ = 15.0
-IMU_HZ = 150.0
+RATE_HZ = RATE_CAMERA_HZ  # the Rosario camera rate
+IMU_HZ = 150.0  # the plane scene's gyro rate (not Rosario's 142 Hz: the synthetic scene's own choice)
 
 
 def _scene(name: str):

@@ -7,7 +7,9 @@ Layout (under ``cache_root``, by default ``pipeline.paths.cache_dir()``)::
         chunk_000000.npz       frames [0, chunk_size): stamps, indices, hole ratios, PNG-encoded depth and grey images
 
 Depth is stored as 16-bit PNG of whole millimetres (0 = hole) and the rectified left grey image as 8-bit PNG
-(lossless, compact: PNG's row filters suit images far better than raw zlib). Chunk files are written atomically.
+(lossless, compact: PNG's row filters suit images far better than raw zlib). The grey image is stored only where
+a frame carries one (the raw depth stage's frames; the inpainting stage stores none: its frames are read for their
+depth only) and decoded only on request (``grey=True``). Chunk files are written atomically.
 The key is the bag's content identity (:meth:`RosarioSequence.identity`) plus :meth:`DepthParams.key` (which
 includes the stage and OpenCV versions), so a changed bag or parameter never reads stale depth.
 """
@@ -22,7 +24,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -57,12 +59,36 @@ class _Encoded:
         """Encode ``frame``; ``depth_mm``: its uint16 millimetre map when the caller already has it (not rounded
         again)."""
         mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm
-        return cls(int(frame.stamp_ns), int(frame.index), _png(mm), _png(np.ascontiguousarray(frame.left_rect_grey)),
-                   frame.hole_ratio)
+        grey = _NO_GREY if frame.left_rect_grey is None else _png(np.ascontiguousarray(frame.left_rect_grey))
+        return cls(int(frame.stamp_ns), int(frame.index), _png(mm), grey, frame.hole_ratio)
 
     def decode(self, grey: bool = True) -> DepthFrame:
+        """The frame; its grey image only when ``grey`` and one was stored (else None)."""
         depth, valid = decode_depth_mm(_unpng(self.depth_png))
-        return DepthFrame(self.stamp_ns, self.index, depth, valid, _unpng(self.grey_png) if grey else None)
+        return DepthFrame(self.stamp_ns, self.index, depth, valid,
+                          _unpng(self.grey_png) if grey and self.grey_png.size else None)
+
+
+#: The stored "grey image" of a frame that carries none (an empty byte array).
+_NO_GREY = np.zeros(0, dtype=np.uint8)
+
+
+class KeyedParams(Protocol):
+    """Parameters that select a cache folder by their :meth:`key` (:class:`DepthParams`,
+    :class:`pipeline.inpaint_stage.InpaintParams`, :class:`CacheKey`)."""
+
+    def key(self) -> str: ...
+
+
+@dataclass(frozen=True)
+class CacheKey:
+    """A cache's parameter key as a run recorded it (``input_key_parts``: :meth:`DepthParams.key` or
+    :meth:`InpaintParams.key`), for reading that cache without rebuilding its parameters (e.g. the replay)."""
+
+    value: str
+
+    def key(self) -> str:
+        return self.value
 
 
 class DepthCache:
@@ -73,11 +99,12 @@ class DepthCache:
     Args:
         cache_root: root folder (``depth/`` is created below it).
         bag_key: the bag identity (e.g. ``RosarioSequence.identity()``).
-        params: depth parameters (their hash selects the sub-folder).
+        params: the parameters (:class:`DepthParams`, an inpainting stage's :class:`InpaintParams`, or a recorded
+            :class:`CacheKey`); their key selects the sub-folder.
         chunk_size: frames per chunk file (an existing cache keeps the size it was written with).
     """
 
-    def __init__(self, cache_root: Path | str, bag_key: str, params: DepthParams,
+    def __init__(self, cache_root: Path | str, bag_key: str, params: KeyedParams,
                  chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
         self.params = params
         self.bag_key = bag_key
@@ -181,6 +208,10 @@ class DepthCache:
         chunk = index // self.chunk_size
         return self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
 
+    def has(self, index: int) -> bool:
+        """Whether frame ``index`` is stored (nothing is decoded)."""
+        return self._encoded(index) is not None
+
     def get(self, index: int, grey: bool = True) -> DepthFrame | None:
         """The cached frame ``index`` (depth in whole millimetres) or None. ``grey=False`` skips decoding the
         rectified grey image (``left_rect_grey`` is then None): the VIO reads only the depth."""
@@ -219,11 +250,12 @@ class DepthCache:
             out[index] = h if np.isfinite(h) else float(1.0 - decode_depth_mm(_unpng(enc.depth_png))[1].mean())
         return out
 
-    def iter(self, start: int = 0, stop: int | None = None) -> Iterator[DepthFrame]:
-        """Cached frames ``start, start+1, …`` in order, ending at ``stop`` or at the first missing frame."""
+    def iter(self, start: int = 0, stop: int | None = None, grey: bool = True) -> Iterator[DepthFrame]:
+        """Cached frames ``start, start+1, …`` in order, ending at ``stop`` or at the first missing frame
+        (``grey=False``: their grey images are not decoded)."""
         index = start
         while stop is None or index < stop:
-            frame = self.get(index)
+            frame = self.get(index, grey)
             if frame is None:
                 return
             yield frame
@@ -235,7 +267,7 @@ class DepthCache:
 
 def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool = True, progress: bool = True,
                  cache_root: Path | str | None = None, stats: dict[str, Any] | None = None,
-                 start_index: int = 0, stop_index: int | None = None) -> Iterator[DepthFrame]:
+                 start_index: int = 0, stop_index: int | None = None, grey: bool = True) -> Iterator[DepthFrame]:
     """Depth frames of a sequence in order, read from the cache or computed (and cached) when missing.
 
     Args:
@@ -247,6 +279,7 @@ def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool
         stats: optional dict filled with ``computed``, ``cached``, ``compute_s`` (seconds spent computing),
             ``directory`` (cache folder or None).
         start_index, stop_index: frame index range.
+        grey: decode the rectified grey image of cached frames (computed frames always carry it).
     Yields:
         :class:`DepthFrame`, depth rounded to whole millimetres in both paths (so results never depend on
         whether the cache was warm).
@@ -267,7 +300,7 @@ def depth_stream(sequence: Any, params: DepthParams = DepthParams(), cache: bool
     try:
         index = start_index
         if store is not None:
-            for frame in store.iter(start_index, stop_index):
+            for frame in store.iter(start_index, stop_index, grey):
                 st["cached"] += 1
                 bar.update(1)
                 index = frame.index + 1

@@ -340,5 +340,5 @@ def sim_training_frames(n_frames: int, seed: int = 0, presets: Sequence[str] = S
     frames = frames[:n_frames]
     desc = (f"{len(frames)} simulated frames (pipeline.sim presets {', '.join(presets)}, seeds "
             f"{1000 + seed}..{1000 + seed + len(presets) - 1}, frames spread over the first "
-            f"{max_frames / 15:.1f} s; exact rendered depth, sky without ground truth)")
+            f"{max_frames / RATE_CAMERA_HZ:.1f} s; exact rendered depth, sky without ground truth)")
     return frames, desc

@@ -73,7 +73,8 @@ def uses_guide(method: str) -> bool:
 
 def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
     """The inpainted version of one raw depth frame (known pixels unchanged; the rectified left grey is the guide
-    of a method that reads one, :func:`uses_guide`). The frame's grey image travels on unchanged."""
+    of a method that reads one, :func:`uses_guide`). The result carries no grey image: inpainted frames are read
+    for their depth only (the raw depth cache keeps the grey)."""
     hole = ~frame.valid
     if not hole.any():
         filled = frame.depth_m.copy()
@@ -85,8 +86,7 @@ def inpaint_frame(frame: DepthFrame, params: InpaintParams) -> DepthFrame:
                          method=params.method, **dict(params.options))
     filled = np.asarray(filled, dtype=np.float32)
     valid = np.isfinite(filled) & (filled > 0)
-    return DepthFrame(frame.stamp_ns, frame.index, np.where(valid, filled, np.nan).astype(np.float32), valid,
-                      frame.left_rect_grey)
+    return DepthFrame(frame.stamp_ns, frame.index, np.where(valid, filled, np.nan).astype(np.float32), valid, None)
 
 
 def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | str, progress: bool = True,
@@ -102,17 +102,17 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
         raise AgrivioError(f"unknown inpainting method {params.method!r}; available: {', '.join(sorted(METHODS))}")
     st = stats if stats is not None else {}
     st.update(computed=0, cached=0, compute_s=0.0)
-    store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
+    store = DepthCache(cache_root, sequence.identity(), params)
     st["directory"] = str(store.directory)
     stop = _complete_stop(store, stop_index)
     if stop is not None:
-        for frame in store.iter(0, stop):
+        for frame in store.iter(0, stop, grey=False):
             st["cached"] += 1
             yield frame
         return
     n_workers = max(1, workers or os.cpu_count() or 1)
     raw = depth_stream(sequence, params.depth, cache=True, progress=False, cache_root=cache_root,
-                       stop_index=stop_index)
+                       stop_index=stop_index, grey=uses_guide(params.method))
     n = 0
     pool = spawn_pool(n_workers) if n_workers > 1 else None
     try:
@@ -121,7 +121,7 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
                 batch = list(itertools.islice(raw, 2 * n_workers))
                 if not batch:
                     break
-                todo = [f for f in batch if store.get(f.index) is None]
+                todo = [f for f in batch if not store.has(f.index)]
                 t0 = time.perf_counter()
                 mapper = pool.map if pool is not None else map
                 fresh: dict[int, DepthFrame] = {}
@@ -136,7 +136,7 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
                 for f in batch:
                     n += 1
                     bar.update(1)
-                    yield fresh[f.index] if f.index in fresh else store.get(f.index)
+                    yield fresh[f.index] if f.index in fresh else store.get(f.index, grey=False)
     finally:
         if pool is not None:
             pool.shutdown()
@@ -160,7 +160,7 @@ def ensure_inpainted(sequence: Any, params: InpaintParams, cache_root: Path | st
     """Make sure frames ``0 .. stop_index-1`` (all without it) are in the inpainted cache, computing what is
     missing; a complete, intact cache is checked without decoding any image (``stats['cached']`` counts it)."""
     st = stats if stats is not None else {}
-    store = DepthCache(cache_root, sequence.identity(), params)  # type: ignore[arg-type]  # any dataclass with key()
+    store = DepthCache(cache_root, sequence.identity(), params)
     stop = _complete_stop(store, stop_index)
     if stop is not None:
         st.update(computed=0, cached=stop, compute_s=0.0, directory=str(store.directory))

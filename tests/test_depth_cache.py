@@ -108,3 +108,24 @@ def test_hole_ratios_are_read_without_decoding_images_and_old_chunks_still_work(
     np.savez(chunk, **old)
     older = DepthCache(tmp_path, "bag-h", DepthParams())
     assert np.allclose(older.hole_ratios(4), [f.hole_ratio for f in frames]) and len(decoded) == 2
+
+
+def test_frames_without_a_grey_image_store_none_and_a_recorded_key_opens_the_same_cache(tmp_path):
+    """Issue 15.5: inpainted frames carry no grey image, so none is stored (the raw cache keeps it); a run's
+    recorded parameter key (``CacheKey``) opens the cache its parameters wrote, without rebuilding them."""
+    from pipeline.depth_cache import CacheKey
+
+    depth = np.full((8, 10), 3.0, dtype=np.float32)
+    grey = np.arange(80, dtype=np.uint8).reshape(8, 10)
+    params = DepthParams(num_disparities=32)
+    cache = DepthCache(tmp_path, "bag-y", params, chunk_size=2)
+    cache.put(DepthFrame(10, 0, depth, np.ones_like(depth, bool), grey))
+    cache.put(DepthFrame(11, 1, depth, np.ones_like(depth, bool), None))
+    cache.flush()
+    again = DepthCache(tmp_path, "bag-y", CacheKey(params.key()))
+    assert again.directory == cache.directory
+    assert np.array_equal(again.get(0).left_rect_grey, grey)
+    assert again.get(1).left_rect_grey is None and again.get(1, grey=False).left_rect_grey is None
+    assert again.get(0, grey=False).left_rect_grey is None
+    assert again.has(1) and not again.has(2)
+    assert np.array_equal(again.get(1).depth_m, depth)

@@ -28,3 +28,9 @@ def test_paper_method_through_the_stage_fills_holes_and_keeps_known_pixels():
 
 def test_cache_keys_differ_by_method():
     assert InpaintParams(method="paper").key() != InpaintParams(method="telea").key()
+
+
+def test_inpainted_frames_carry_no_grey_image():
+    """Issue 15.5: no method reads the grey guide, and inpainted frames are read for their depth only."""
+    frame, _ = _frame()
+    assert inpaint_frame(frame, InpaintParams(method="telea")).left_rect_grey is None

@@ -17,9 +17,9 @@ from eval.synthetic import field_path, perturbed_estimate
 from eval.trajectory import Trajectory, format_tum
 from msckf.types import DepthSource
 from pipeline import replay_layout as lay
-from pipeline.commands.replay import load_run
 from pipeline.replay import ReplayFrame, ReplayRun, recorded_entities, write_replay
 from pipeline.replay_features import feature_classes
+from pipeline.replay_stage import load_run
 
 K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
 LEVER = (0.47, 0.03, -0.40)  # the simulated Rosario antenna in the IMU frame, ≈ 0.6 m
@@ -184,8 +184,8 @@ def test_fit_eye_frames_the_points():
 
 
 def test_external_estimate_is_aligned_like_the_runs(tmp_path):
-    from pipeline.commands.replay import external_run
     from pipeline.external_tracks import load_external
+    from pipeline.replay_stage import external_run
 
     run_dir = _write_run_folder(tmp_path, "depth-raw", 0)
     lr = load_run(run_dir)
@@ -204,3 +204,34 @@ def test_feature_markers_grow_with_the_stated_depth_sigma():
     r = feature_radii(np.array([np.nan, 0.02, 0.15, 0.9]), 4)
     assert r.tolist() == pytest.approx([3.0, 3.4, 6.0, 9.0])        # no depth, measured, filled, capped
     assert feature_radii(None, 3).tolist() == [3.0, 3.0, 3.0]      # old logs: one size
+
+
+def test_replay_reads_the_depth_caches_named_by_the_records(tmp_path):
+    """Issue 15.1: the replay opens the caches the runs read (their recorded keys), not caches rebuilt from default
+    parameters; with non-default depth and no inpainted run there is no inpainted view."""
+    from pipeline.depth import DepthFrame, DepthParams
+    from pipeline.depth_cache import DepthCache
+    from pipeline.inpaint_stage import InpaintParams
+    from pipeline.replay_stage import _recorded_caches
+
+    depth = DepthParams(num_disparities=32)
+    inpaint = InpaintParams(depth=depth, method="telea")
+    frame = DepthFrame(0, 0, np.full((4, 6), 2.0, np.float32), np.ones((4, 6), bool), None)
+    for params in (depth, inpaint, DepthParams(), InpaintParams()):
+        store = DepthCache(tmp_path / "cache", "bag-z", params)
+        store.put(frame)
+        store.flush()
+    dirs = {}
+    for variant, seed in (("depth-raw", 0), ("depth-inpainted", 1)):
+        d = _write_run_folder(tmp_path, variant, seed)
+        rec = json.loads((d / "record.json").read_text())
+        rec["job"] = {"cache_root": str(tmp_path / "cache")}
+        rec["input_key_parts"] = {"depth": depth.key(), **({"inpaint": inpaint.key()} if seed else {})}
+        (d / "record.json").write_text(json.dumps(rec))
+        dirs[variant] = d
+    both = [load_run(dirs["depth-raw"]), load_run(dirs["depth-inpainted"])]
+    raw, filled = _recorded_caches(both, "bag-z")
+    assert raw.directory == DepthCache(tmp_path / "cache", "bag-z", depth).directory
+    assert filled.directory == DepthCache(tmp_path / "cache", "bag-z", inpaint).directory
+    raw_only, none = _recorded_caches(both[:1], "bag-z")
+    assert raw_only.directory == raw.directory and none is None

@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     report_dir = comparison.out
     replays: list[Path] = []
     if not args.no_replay:
-        from pipeline.commands.replay import replay_runs
+        from pipeline.replay_stage import replay_runs
 
         t0 = time.perf_counter()
         seq = specs[0].source
