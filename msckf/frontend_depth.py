@@ -28,11 +28,11 @@ def sample_depth(
     depth_m: np.ndarray,
     depth_valid: np.ndarray,
     rect_px: np.ndarray,
-    sampling: str = "bilinear",
-    edge_window: int = 5,
-    edge_threshold: float = 0.15,
-    min_depth_m: float = 0.3,
-    max_depth_m: float = 20.0,
+    sampling: str,
+    edge_window: int,
+    edge_threshold: float,
+    min_depth_m: float,
+    max_depth_m: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Depth at sub-pixel positions of a depth map, with invalid / edge / out-of-range rejection.
 
@@ -45,6 +45,10 @@ def sample_depth(
         depth_m: (H, W) float depth Z in metres, rectified left frame.
         depth_valid: (H, W) bool validity.
         rect_px: (N, 2) rectified left pixel positions ``(u, v)``.
+        sampling, edge_window, edge_threshold, min_depth_m, max_depth_m: the front end's settings
+            (:class:`msckf.frontend_config.FrontendConfig` ``depth_sampling``, ``depth_edge_window`` (px),
+            ``depth_edge_threshold`` (relative), ``min_depth_m`` / ``max_depth_m`` (m)); no defaults here, so the
+            config is their one home.
     Returns:
         ``(depth, reason)``: (N,) float64 depth in metres (NaN where rejected) and (N,) uint8 ``DepthReject``.
     """

@@ -159,10 +159,11 @@ def two_point_ransac(
     focal_px: float,
     threshold_px: float,
     rng: np.random.Generator,
-    iterations: int = 7,
-    max_motion_px: float = 50.0,
-    min_inlier_fraction: float = 0.2,
-    degenerate_motion_px: float = 1.0,
+    *,
+    iterations: int,
+    max_motion_px: float,
+    min_inlier_fraction: float,
+    degenerate_motion_px: float,
 ) -> np.ndarray:
     """2-point RANSAC on consecutive frames of one camera, with the rotation known from the gyro.
 

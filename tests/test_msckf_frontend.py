@@ -37,6 +37,11 @@ from pipeline.plane_scene import (
 )
 
 RATE = 15.0
+_CFG = FrontendConfig()
+#: two_point_ransac's settings as the front end passes them (the config is their one home).
+_RANSAC = dict(iterations=_CFG.ransac_iterations, max_motion_px=_CFG.ransac_max_motion_px,
+               min_inlier_fraction=_CFG.ransac_min_inlier_fraction,
+               degenerate_motion_px=_CFG.ransac_degenerate_motion_px)
 
 
 def _wall_motion(t: float) -> np.ndarray:
@@ -164,17 +169,17 @@ def test_two_point_ransac_removes_injected_outliers_and_is_seeded():
     E_dist = epipolar_distance(rotate_normalised(xy_prev, R), xy_curr, np.eye(3), t) * f
     detectable = np.zeros(300, bool)
     detectable[bad] = E_dist[bad] > 6.0
-    inl = two_point_ransac(xy_prev, xy_curr, R, f, 3.0, np.random.default_rng(0))
+    inl = two_point_ransac(xy_prev, xy_curr, R, f, 3.0, np.random.default_rng(0), **_RANSAC)
     good = np.setdiff1d(np.arange(300), bad)
     assert inl[good].mean() > 0.98
     assert not inl[detectable].any()
     assert detectable.sum() > 40
-    again = two_point_ransac(xy_prev, xy_curr, R, f, 3.0, np.random.default_rng(0))
+    again = two_point_ransac(xy_prev, xy_curr, R, f, 3.0, np.random.default_rng(0), **_RANSAC)
     assert np.array_equal(inl, again)
     # No translation (degenerate): points that moved more than the threshold are outliers.
     xy_rot = rotate_normalised(xy_prev, R)
     xy_rot[:10] += 10.0 / f
-    inl = two_point_ransac(xy_prev, xy_rot, R, f, 3.0, np.random.default_rng(0))
+    inl = two_point_ransac(xy_prev, xy_rot, R, f, 3.0, np.random.default_rng(0), **_RANSAC)
     assert not inl[:10].any() and inl[10:].all()
 
 
