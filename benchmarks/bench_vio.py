@@ -45,10 +45,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _load(preset: str, duration_s: float, variant: str, max_frames: int | None) -> dict:
     """Decode the sequence's frames (and depth) into memory; fills the depth cache when missing."""
-    import cv2
-
     from pipeline.bag_reader import RosarioSequence
-    from pipeline.depth import DepthParams
+    from pipeline.depth import DepthParams, to_grey
     from pipeline.depth_cache import DepthCache, depth_stream
     from pipeline.depth_sigma import DepthSigmaModel
     from pipeline.paths import cache_dir
@@ -67,11 +65,9 @@ def _load(preset: str, duration_s: float, variant: str, max_frames: int | None) 
         store = DepthCache(root, seq.identity(), DepthParams())
     sigma_model = DepthSigmaModel.for_rig(seq.calibration)
     for fr in seq.stereo_frames(stop_index=max_frames, right=variant == STEREO):
-        def grey(bgr: np.ndarray) -> np.ndarray:
-            return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) if bgr.ndim == 3 else bgr
-        item = {"stamp_ns": fr.stamp_ns, "left": grey(fr.left_bgr)}
+        item = {"stamp_ns": fr.stamp_ns, "left": to_grey(fr.left_bgr)}
         if variant == STEREO:
-            item["right"] = grey(fr.right_bgr)
+            item["right"] = to_grey(fr.right_bgr)
         else:
             d = store.get(fr.index, grey=False)
             item["depth"] = np.asarray(d.depth_m, dtype=np.float32)

@@ -20,7 +20,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from msckf.config import load_config  # noqa: E402
@@ -28,6 +27,7 @@ from msckf.init import NonStaticStartError  # noqa: E402
 from msckf.vio import Msckf  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.bag_reader import RosarioSequence  # noqa: E402
+from pipeline.depth import to_grey  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 from pipeline.sim.sequence import SimulatedSequence  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
@@ -54,8 +54,7 @@ def match_errors(sim: SimulatedSequence, flat_rel: float = 0.03) -> np.ndarray:
             except NonStaticStartError:
                 pass
             k += 1
-        vio.add_frame(t, cv2.cvtColor(fr.left_bgr, cv2.COLOR_BGR2GRAY),
-                      right_grey=cv2.cvtColor(fr.right_bgr, cv2.COLOR_BGR2GRAY))
+        vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
         dbg = vio.frontend.last_debug
         if dbg is None or not len(dbg.ids):
             continue

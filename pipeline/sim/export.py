@@ -17,7 +17,7 @@ import yaml
 
 from msckf.camera import StereoRig
 from pipeline.atomic import atomic_path
-from pipeline.depth import encode_depth_mm
+from pipeline.depth import encode_depth_mm, to_grey
 from pipeline.png_codec import PNG_FAST, decode_png, encode_png_bytes
 from pipeline.sim.config import ImuConfig
 
@@ -205,7 +205,7 @@ class EurocWriter:
     def add_stereo(self, stamp_ns: int, left_bgr: np.ndarray, right_bgr: np.ndarray) -> None:
         for c, img in ((0, left_bgr), (1, right_bgr)):
             name = f"{int(stamp_ns)}.png"
-            cv2.imwrite(str(self.tmp / f"mav0/cam{c}/data" / name), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY),
+            cv2.imwrite(str(self.tmp / f"mav0/cam{c}/data" / name), to_grey(img),
                         PNG_FAST)
             self._cam_csv[c].write(f"{int(stamp_ns)},{name}\n")
 

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from msckf.camera import StereoRig
-from pipeline.depth import DepthParams, compute_depth
+from pipeline.depth import DepthParams, compute_depth, to_grey
 from pipeline.png_codec import encode_png_bytes
 from pipeline.sim.render import LABEL_CANOPY, LABEL_LEAF, LABEL_SKY
 
@@ -116,7 +116,7 @@ def analyse_frame(index: int, rig: StereoRig, left_bgr: np.ndarray, right_bgr: n
     est, gt = d.depth_m[m].astype(np.float64), gt_depth[m].astype(np.float64)
     fb = rig.fx * rig.baseline
     fast = cv2.FastFeatureDetector_create(threshold=10, nonmaxSuppression=True)
-    corners = len(fast.detect(cv2.cvtColor(left_bgr, cv2.COLOR_BGR2GRAY)))
+    corners = len(fast.detect(to_grey(left_bgr)))
     fr = FrameRealism(index, d.hole_ratio, frac, np.abs(est - gt), np.abs(est - gt) / gt,
                       np.abs(fb / est - fb / gt), corners)
     return fr, d, causes
