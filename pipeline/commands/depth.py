@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from pipeline.atomic import write_json_atomic
 from pipeline.bag_reader import RosarioSequence
 from pipeline.data_quality import check_stereo_pairing, sequence_quality, summary_lines
 from pipeline.depth import DepthParams
-from pipeline.depth_cache import depth_stream
+from pipeline.depth_stage import run_depth
 from pipeline.paths import cache_dir
 
 
@@ -31,19 +27,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def summarize(hole_ratios: list[float], stats: dict[str, Any], wall_s: float) -> dict[str, Any]:
-    """Summary dict of a depth pass: frames, hole-ratio median/p10/p90, seconds per computed frame."""
-    h = np.asarray(hole_ratios, dtype=np.float64)
-    pct = (lambda q: float(np.percentile(h, q))) if h.size else (lambda q: float("nan"))
-    computed = int(stats.get("computed", 0))
-    return {
-        "frames": int(h.size), "computed": computed, "cached": int(stats.get("cached", 0)),
-        "hole_ratio_median": pct(50), "hole_ratio_p10": pct(10), "hole_ratio_p90": pct(90),
-        "compute_s_per_frame": float(stats["compute_s"] / computed) if computed else None,
-        "wall_s": float(wall_s), "cache_dir": stats.get("directory"),
-    }
-
-
 def print_summary(summary: dict[str, Any]) -> None:
     print(f"frames              {summary['frames']} ({summary['computed']} computed, {summary['cached']} from cache)")
     print(f"hole ratio          median {summary['hole_ratio_median']:.3f}  p10 {summary['hole_ratio_p10']:.3f}  "
@@ -54,23 +37,6 @@ def print_summary(summary: dict[str, Any]) -> None:
     print(f"wall time           {summary['wall_s']:.2f} s")
     if summary.get("cache_dir"):
         print(f"cache               {summary['cache_dir']}")
-
-
-def run_depth(seq: RosarioSequence, params: DepthParams, *, cache: bool, cache_root: Path | None,
-              max_frames: int | None, progress: bool) -> dict[str, Any]:
-    """Stream the depth stage over ``seq`` and return :func:`summarize`'s dict (also written to the cache)."""
-    stats: dict[str, Any] = {}
-    holes: list[float] = []
-    t0 = time.perf_counter()
-    for frame in depth_stream(seq, params, cache=cache, progress=progress, cache_root=cache_root, stats=stats,
-                              stop_index=max_frames):
-        holes.append(frame.hole_ratio)
-    summary = summarize(holes, stats, time.perf_counter() - t0)
-    summary["unpaired_left"] = seq.stats.unpaired_left
-    summary["unpaired_right"] = seq.stats.unpaired_right
-    if summary["cache_dir"]:
-        write_json_atomic(Path(summary["cache_dir"]) / "summary.json", summary)
-    return summary
 
 
 def run(args: argparse.Namespace) -> int:
