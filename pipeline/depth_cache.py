@@ -4,7 +4,9 @@ Layout (under ``cache_root``, by default ``pipeline.paths.cache_dir()``)::
 
     depth/<bag identity>/<params key>/
         meta.json              params, bag identity, chunk size, and ``n_frames`` once the sequence is complete
-        chunk_000000.npz       frames [0, chunk_size): stamps, indices, hole ratios, PNG-encoded depth and grey images
+        chunk_000000.npz       frames [0, chunk_size): indices, stamps, hole ratios, PNG-encoded depth and grey images
+                               (the chunk layout of :mod:`pipeline.png_chunks`; chunks of the earlier layout
+                               are still read)
 
 Depth is stored as 16-bit PNG of whole millimetres (0 = hole) and the rectified left grey image as 8-bit PNG
 (lossless, compact: PNG's row filters suit images far better than raw zlib). The grey image is stored only where
@@ -28,8 +30,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from pipeline.atomic import atomic_path, write_json_atomic
+from pipeline.atomic import write_json_atomic
 from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize_mm
+from pipeline.png_chunks import read_chunk, write_chunk
 from pipeline.png_codec import PNG_COMPACT, decode_png, encode_png
 
 DEFAULT_CHUNK_SIZE = 32
@@ -71,6 +74,26 @@ class _Encoded:
 
 #: The stored "grey image" of a frame that carries none (an empty byte array).
 _NO_GREY = np.zeros(0, dtype=np.uint8)
+
+
+def _read_frames(path: Path) -> dict[int, _Encoded]:
+    """The frames of one chunk file: the shared layout (:mod:`pipeline.png_chunks`), or the layout this cache
+    wrote before it (``stamps_ns``, ``indices``, optional ``hole_ratios``, ``depth_K`` / ``grey_K`` per frame)."""
+    with np.load(path) as z:
+        legacy = "indices" in z.files
+    if not legacy:
+        c = read_chunk(path)
+        holes = c.columns.get("hole_ratio")
+        has_grey = "grey" in c.layers
+        return {int(index): _Encoded(int(stamp), int(index), c.blob("depth", k),
+                                     c.blob("grey", k) if has_grey else _NO_GREY,
+                                     float(holes[k]) if holes is not None else float("nan"))
+                for k, (stamp, index) in enumerate(zip(c.stamp_ns.tolist(), c.index.tolist()))}
+    with np.load(path) as z:
+        holes_old = z["hole_ratios"].tolist() if "hole_ratios" in z.files else None
+        return {int(index): _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"],
+                                     float(holes_old[k]) if holes_old is not None else float("nan"))
+                for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist()))}
 
 
 class KeyedParams(Protocol):
@@ -172,11 +195,7 @@ class DepthCache:
         frames: dict[int, _Encoded] = {}
         if path.is_file():
             try:
-                with np.load(path) as z:
-                    holes = z["hole_ratios"].tolist() if "hole_ratios" in z.files else None
-                    for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist())):
-                        frames[int(index)] = _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"],
-                                                      float(holes[k]) if holes is not None else float("nan"))
+                frames = _read_frames(path)
             except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
                 # a truncated or garbled chunk (zip CRC-32 / structure check) is said once and recomputed
                 print(f"warning: {path}: corrupt depth-cache chunk ({type(exc).__name__}: {exc}); it is "
@@ -187,20 +206,12 @@ class DepthCache:
 
     def _write_chunk(self, chunk: int, frames: dict[int, _Encoded]) -> None:
         ordered = [frames[i] for i in sorted(frames)]
-        arrays: dict[str, np.ndarray] = {
-            "stamps_ns": np.array([f.stamp_ns for f in ordered], dtype=np.int64),
-            "indices": np.array([f.index for f in ordered], dtype=np.int64),
-            "hole_ratios": np.array([f.hole_ratio for f in ordered], dtype=np.float64),
-        }
-        for k, f in enumerate(ordered):
-            arrays[f"depth_{k}"] = f.depth_png
-            arrays[f"grey_{k}"] = f.grey_png
         self.directory.mkdir(parents=True, exist_ok=True)
         if not self.meta_path.exists():
             self._write_meta()
-        with atomic_path(self._chunk_path(chunk), suffix=".npz") as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez(fh, **arrays)
+        write_chunk(self._chunk_path(chunk), [f.index for f in ordered], [f.stamp_ns for f in ordered],
+                    {"depth": [f.depth_png for f in ordered], "grey": [f.grey_png for f in ordered]},
+                    {"hole_ratio": np.array([f.hole_ratio for f in ordered], dtype=np.float64)})
         self._loaded = (chunk, dict(frames))
 
     # ---- public API --------------------------------------------------------------------------------------------

@@ -102,12 +102,26 @@ def test_hole_ratios_are_read_without_decoding_images_and_old_chunks_still_work(
     fresh = DepthCache(tmp_path, "bag-h", DepthParams())
     assert np.allclose(fresh.hole_ratios(4), [f.hole_ratio for f in frames]) and not decoded
     assert fresh.hole_ratios(5) is None                               # frame 4 is not cached
-    chunk = fresh.directory / "chunk_000001.npz"                      # rewrite one chunk in the old format
+    chunk = fresh.directory / "chunk_000001.npz"                      # rewrite one chunk without its ratios
     with np.load(chunk) as z:
-        old = {k: z[k] for k in z.files if k != "hole_ratios"}
+        old = {k: z[k] for k in z.files if k != "hole_ratio"}
     np.savez(chunk, **old)
     older = DepthCache(tmp_path, "bag-h", DepthParams())
     assert np.allclose(older.hole_ratios(4), [f.hole_ratio for f in frames]) and len(decoded) == 2
+    # the layout this cache wrote before pipeline.png_chunks (one array per image) is still read
+    c0 = older.directory / "chunk_000000.npz"
+    from pipeline.png_chunks import read_chunk
+
+    c = read_chunk(c0)
+    legacy = {"stamps_ns": c.stamp_ns, "indices": c.index}
+    for k in range(len(c.index)):
+        legacy[f"depth_{k}"], legacy[f"grey_{k}"] = c.blob("depth", k), c.blob("grey", k)
+    np.savez(c0, **legacy)
+    oldest = DepthCache(tmp_path, "bag-h", DepthParams())
+    assert [f.index for f in oldest.iter(0, 4)] == [0, 1, 2, 3]
+    for f in frames[:2]:
+        got = oldest.get(f.index)
+        assert np.array_equal(got.valid, f.valid) and np.array_equal(got.left_rect_grey, f.left_rect_grey)
 
 
 def test_frames_without_a_grey_image_store_none_and_a_recorded_key_opens_the_same_cache(tmp_path):

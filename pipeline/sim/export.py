@@ -16,8 +16,8 @@ import numpy as np
 import yaml
 
 from msckf.camera import StereoRig
-from pipeline.atomic import atomic_path
 from pipeline.depth import encode_depth_mm, to_grey
+from pipeline.png_chunks import Chunk, read_chunk, write_chunk
 from pipeline.png_codec import PNG_FAST, decode_png, encode_png_bytes
 from pipeline.sim.config import ImuConfig
 
@@ -78,16 +78,10 @@ class DepthChunkWriter:
         if not self._rows:
             return
         first = self._rows[0][0]
-        arrays: dict[str, np.ndarray] = {"index": np.array([r[0] for r in self._rows], np.int64),
-                                         "stamp_ns": np.array([r[1] for r in self._rows], np.int64)}
-        for j, key in ((2, "depth"), (3, "label"), (4, "glare"), (5, "rdepth"), (6, "rlabel")):
-            if self._rows[0][j] is None:
-                continue
-            blobs = [r[j] for r in self._rows]
-            arrays[key] = np.frombuffer(b"".join(blobs), np.uint8)
-            arrays[key + "_off"] = np.cumsum([0] + [len(b) for b in blobs]).astype(np.int64)
-        with atomic_path(self.folder / f"chunk_{first // self.chunk:05d}.npz", suffix=".npz") as tmp:
-            np.savez(tmp, **arrays)
+        layers = {key: [r[j] for r in self._rows]
+                  for j, key in ((2, "depth"), (3, "label"), (4, "glare"), (5, "rdepth"), (6, "rlabel"))}
+        write_chunk(self.folder / f"chunk_{first // self.chunk:05d}.npz", [r[0] for r in self._rows],
+                    [r[1] for r in self._rows], layers)
         self._rows = []
 
 
@@ -97,34 +91,35 @@ class DepthChunkReader:
     def __init__(self, folder: Path, chunk: int = DEPTH_CHUNK) -> None:
         self.folder = Path(folder)
         self.chunk = chunk
-        self._cache: tuple[int, dict[str, np.ndarray]] | None = None
+        self._cache: tuple[int, Chunk] | None = None
 
-    def _load(self, c: int) -> dict[str, np.ndarray]:
+    def _load(self, c: int) -> Chunk:
         if self._cache is None or self._cache[0] != c:
             path = self.folder / f"chunk_{c:05d}.npz"
             if not path.is_file():
                 raise FileNotFoundError(f"{path}: depth chunk missing")
-            with np.load(path) as z:
-                self._cache = (c, {k: z[k] for k in z.files})
+            self._cache = (c, read_chunk(path))
         return self._cache[1]
 
     def get(self, index: int, key: str = "depth") -> np.ndarray:
         """Decoded image ``key`` of frame ``index``: depth/rdepth as float32 metres (NaN = none), else uint8."""
         data = self._load(index // self.chunk)
-        pos = np.flatnonzero(data["index"] == index)
-        if not pos.size:
+        pos = data.position(index)
+        if pos is None:
             raise IndexError(f"frame {index} not in {self.folder}")
-        if key not in data:
+        if key not in data.layers:
             raise KeyError(f"{self.folder}: no {key!r} stored")
-        off = data[key + "_off"]
-        img = _unpng(data[key][off[pos[0]]:off[pos[0] + 1]])
+        img = _unpng(data.blob(key, pos))
         if key in ("depth", "rdepth"):
             return np.where(img > 0, img.astype(np.float32) / 1000.0, np.float32(np.nan)).astype(np.float32)
         return img
 
     def stamp_ns(self, index: int) -> int:
         data = self._load(index // self.chunk)
-        return int(data["stamp_ns"][np.flatnonzero(data["index"] == index)[0]])
+        pos = data.position(index)
+        if pos is None:
+            raise IndexError(f"frame {index} not in {self.folder}")
+        return int(data.stamp_ns[pos])
 
 
 # ---- EuRoC / ASL ---------------------------------------------------------------------------------------------------
