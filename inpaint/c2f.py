@@ -25,7 +25,8 @@ the fine ones (1/1, 1/2). This formulation keeps every component of the paper an
    - candidates: the best block at this level and, for each coarser level, the best block that level's field holds
      at the same place (sampled at that level and upsampled bilinearly), each shifted to the block mean of the
      measured pixels (estimated ones weigh ``w_anchor``, so a block without measured pixels keeps the estimate's
-     mean); quality q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
+     mean) and clamped to the values of the source and the target block (``shift_clamp``); quality
+     q = −min(Sim/energy, 10), valid where Sim/energy < ``match_threshold`` (1_match), else
      the levels that found any block (fall-back), else the current estimate;
    - fusion of the candidates (``fusion``): the PLIP-softmax network (one compiled call per pass,
      ``fusion_kernels.fuse_clamped``: the inference form ``FusionNet.forward_valid`` of the same weights as one
@@ -92,6 +93,11 @@ class C2FOptions:
     - seed [0]: seed of the random search (the output is deterministic for a given seed); clamp_fusion [True]: the
       network's fused value of a pixel is kept within the range of the valid candidates there; scales [4]: candidate
       levels per pass (this level and the next coarser ones; fewer is faster and measured worse).
+    - shift_clamp [True]: a candidate shifted to the target's anchored mean is clamped to the range of the values of
+      its unshifted block and of the target block (measured and estimated): structure is copied, but no depth that
+      neither holds is invented. Without it a block straddling a depth edge, shifted by its mean, pushed its far side
+      beyond anything measured, up to the farthest (noisiest) measured depth — with stereo noise hundreds of metres
+      (issue 12, generalisation: stereo-noise hole RMSE 1.77 → 1.06 m).
     """
 
     levels: int = 3
@@ -119,6 +125,7 @@ class C2FOptions:
     seed: int = 0
     clamp_fusion: bool = True
     scales: int = 4
+    shift_clamp: bool = True
 
     @classmethod
     def from_kwargs(cls, **options: object) -> C2FOptions:
@@ -368,7 +375,7 @@ class _CoarseToFine:
         # the target block (estimate, measured mask) and every candidate shifted to its anchored mean
         est_blk = np.empty((k_n, b, b), np.float32)
         known_blk = np.empty((k_n, b, b), bool)
-        anchor_blocks(est, known, centres, h, np.float32(o.w_anchor), cands, est_blk, known_blk)
+        anchor_blocks(est, known, centres, h, np.float32(o.w_anchor), cands, est_blk, known_blk, o.shift_clamp)
         still = ~valid.any(axis=1)
         if still.any():  # no block anywhere: keep the current estimate
             cands[still, 0] = est_blk[still]

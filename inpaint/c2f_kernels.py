@@ -196,17 +196,22 @@ def sample_blocks(img: np.ndarray, centres: np.ndarray, h: int, inv_scale: float
 
 @numba.njit(**NJIT)
 def anchor_blocks(est: np.ndarray, known: np.ndarray, centres: np.ndarray, h: int, w_anchor: np.float32,
-                  cands: np.ndarray, est_blk: np.ndarray, known_blk: np.ndarray) -> None:
+                  cands: np.ndarray, est_blk: np.ndarray, known_blk: np.ndarray, clamp: bool = False) -> None:
     """Target blocks and candidate shift of a refinement pass: ``est_blk[k]`` / ``known_blk[k]`` (b×b, b = 2h+1)
     = ``est`` / ``known`` (H×W) around centre k; every candidate ``cands[k, s]`` (K×S×b×b, in place) is shifted by
     μ_t − μ_c, the difference of the target's and the candidate's weighted block means, weights 1 on measured
-    pixels and ``w_anchor`` on estimated ones (float64 sums)."""
+    pixels and ``w_anchor`` on estimated ones (float64 sums). ``clamp``: the shifted candidate is then clamped to
+    the range of the values that exist in the unshifted candidate or in the target block (measured or estimated):
+    the shift copies structure, but cannot invent a depth that neither the source nor the target holds (a block
+    straddling a depth edge, shifted by the mean, would otherwise push its far side beyond anything measured)."""
     k_n, s_n, b, _ = cands.shape
     one = np.float32(1.0)
     for k in range(k_n):
         cy, cx = centres[k, 0] - h, centres[k, 1] - h
         ws = 0.0
         st = 0.0
+        t_lo = np.float32(np.inf)
+        t_hi = np.float32(-np.inf)
         for y in range(b):
             for x in range(b):
                 kn = known[cy + y, cx + x]
@@ -216,17 +221,29 @@ def anchor_blocks(est: np.ndarray, known: np.ndarray, centres: np.ndarray, h: in
                 w = one if kn else w_anchor
                 ws += w
                 st += w * v
+                t_lo = min(t_lo, v)
+                t_hi = max(t_hi, v)
         mu_t = st / ws
         for s in range(s_n):
             sc = 0.0
+            lo = t_lo
+            hi = t_hi
             for y in range(b):
                 for x in range(b):
                     w = one if known_blk[k, y, x] else w_anchor
-                    sc += w * cands[k, s, y, x]
+                    c = cands[k, s, y, x]
+                    sc += w * c
+                    lo = min(lo, c)
+                    hi = max(hi, c)
             d = np.float32(mu_t - sc / ws)
-            for y in range(b):
-                for x in range(b):
-                    cands[k, s, y, x] += d
+            if clamp:
+                for y in range(b):
+                    for x in range(b):
+                        cands[k, s, y, x] = min(max(cands[k, s, y, x] + d, lo), hi)
+            else:
+                for y in range(b):
+                    for x in range(b):
+                        cands[k, s, y, x] += d
 
 
 @numba.njit(**NJIT)

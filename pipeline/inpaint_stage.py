@@ -30,8 +30,9 @@ from pipeline.process_pool import spawn_pool
 #: formulation (the greedy one is ``paper-greedy``). 3: issue 12 — compiled coarsest search (rounding), nearest-source
 #: init, the network in its inference form and the fusion skip where candidates agree. 4: issue 12, second round —
 #: the fusion network compiled (``inpaint.fusion_kernels``), a 4-channel decoder (new ``fusion_net_c2f`` weights),
-#: one PatchMatch scan per pass, the anchored candidate shift in float64.
-INPAINT_STAGE_VERSION = 4
+#: one PatchMatch scan per pass, the anchored candidate shift in float64. 5: issue 12, generalisation — ``paper``'s
+#: shifted candidates are clamped to the values of their source block and the target block (``shift_clamp``).
+INPAINT_STAGE_VERSION = 5
 
 
 @dataclass(frozen=True)

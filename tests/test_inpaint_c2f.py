@@ -5,7 +5,7 @@ import pytest
 
 from inpaint import METHODS, InpaintInputError, inpaint
 from inpaint.c2f import C2FOptions, _block_grid
-from inpaint.c2f_kernels import nnf_search, paste_blocks, sample_blocks
+from inpaint.c2f_kernels import anchor_blocks, nnf_search, paste_blocks, sample_blocks
 from inpaint.gradient import gradient_channels
 from inpaint.masks import random_mask
 from inpaint.synthetic import field_depth, object_depth
@@ -139,3 +139,47 @@ def test_sample_and_paste_kernels():
     paste_blocks(np.ones((2, 3, 3), np.float32) * np.array([1, 3], np.float32)[:, None, None],
                  np.array([[4, 4], [4, 5]], np.intp), 1, np.ones((3, 3), np.float32), acc, wacc)
     assert acc[4, 4] / wacc[4, 4] == pytest.approx(2.0) and acc[4, 3] / wacc[4, 3] == pytest.approx(1.0)
+
+
+def test_anchor_shift_clamp_keeps_an_edge_block_within_source_and_target_values():
+    # A candidate straddling a depth edge (inverse depth 0.2 far / 1.25 near) for a target that is mostly far
+    # (measured 0.25): the mean shift (−0.4) would push the candidate's far side to −0.2, a depth that neither the
+    # source nor the target holds; with ``clamp`` every value stays in [min, max] of candidate ∪ target block.
+    h, b = 2, 5
+    est = np.full((9, 9), 0.25, np.float32)
+    known = np.ones((9, 9), bool)
+    known[3:6, 3:6] = False  # the hole
+    centres = np.array([[4, 4]], np.intp)
+    cand = np.where(np.arange(b)[None, :] < 2, 0.2, 1.25).astype(np.float32) * np.ones((b, 1), np.float32)
+    out = {}
+    for clamp in (False, True):
+        cands = cand[None, None].copy()
+        est_blk = np.empty((1, b, b), np.float32)
+        known_blk = np.empty((1, b, b), bool)
+        anchor_blocks(est, known, centres, h, np.float32(0.01), cands, est_blk, known_blk, clamp)
+        out[clamp] = cands[0, 0]
+    assert out[False].min() < 0.0  # the unclamped shift invents a value beyond both blocks
+    assert out[True].min() >= 0.2 - 1e-6 and out[True].max() <= 1.25 + 1e-6
+    # where the shifted value is inside the range it is the shifted value itself (a pure offset, as before)
+    inside = (out[False] >= 0.2) & (out[False] <= 1.25)
+    assert inside.any() and np.array_equal(out[True][inside], out[False][inside])
+
+
+def test_shift_clamp_lowers_the_error_behind_a_noisy_occluding_box():
+    # A box at 3 m before a wall at 30 m, known pixels with stereo noise (0.15 px, 1/16 px steps), 40 % blob holes:
+    # blocks straddling the box's edge, shifted by their mean, gave far-side fills beyond the wall. Stated bound: the
+    # clamp lowers the hole RMSE averaged over 4 seeds (measured 10.93 → 9.73 m) and never raises it by > 2 %.
+    from inpaint.synthetic import stereo_noise
+
+    y, x = np.mgrid[0:H, 0:W]
+    d = np.full((H, W), 30.0, np.float32)
+    d[(x > 40) & (x < 120) & (y > 20) & (y < 76)] = 3.0
+    rmse = {False: [], True: []}
+    for seed in range(4):
+        m = random_mask(d.shape, 0.4, "blobs", seed=seed)
+        raw = np.where(m, np.nan, stereo_noise(d, seed=seed)).astype(np.float32)
+        for clamp in (False, True):
+            o = inpaint(raw, m, method="paper", shift_clamp=clamp)
+            rmse[clamp].append(float(np.sqrt(np.mean((o[m] - d[m]) ** 2))))
+    assert np.mean(rmse[True]) < 0.95 * np.mean(rmse[False]), rmse
+    assert all(c <= 1.02 * n for c, n in zip(rmse[True], rmse[False], strict=True)), rmse
