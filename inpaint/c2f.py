@@ -45,7 +45,7 @@ generator, one torch thread).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
@@ -54,11 +54,11 @@ import numpy as np
 from inpaint.block_search import LevelGrid, SearchResult
 from inpaint.c2f_kernels import anchor_blocks, block_search, nnf_search, paste_blocks, sample_blocks
 from inpaint.errors import InpaintInputError
-from inpaint.fusion import FUSION_MODES, softmax_weights
+from inpaint.fusion import softmax_weights
 from inpaint.fusion_kernels import NetArrays, fuse_clamped, net_arrays, run_net_compiled
 from inpaint.fusion_net import SIGMA_MIN, WEIGHTS_DIR, load_net, normalise, run_net
-from inpaint.gradient import GRADIENT_KINDS, anisotropic_channels_fast, gradient_channels
-from inpaint.method import PaperOptions, _Filler, fill_in_domain
+from inpaint.gradient import anisotropic_channels_fast, gradient_channels
+from inpaint.method import PaperOptions, _Filler, check_shared_options, fill_in_domain, options_from_kwargs
 from inpaint.pyramid import masked_pyrdown
 
 C2F_WEIGHTS_FILE = WEIGHTS_DIR / "fusion_net_c2f.pt"
@@ -129,31 +129,10 @@ class C2FOptions:
 
     @classmethod
     def from_kwargs(cls, **options: object) -> C2FOptions:
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(options) - names)
-        if unknown:
-            raise InpaintInputError(f"unknown option(s) for method 'paper': {unknown}; known: {sorted(names)}")
-        for key in ("passes", "search", "coarse_radius"):
-            if key in options and not isinstance(options[key], tuple):
-                v = options[key]
-                options[key] = tuple(int(x) for x in v) if isinstance(v, (list, tuple)) else (int(v),)
-        opts = cls(**options)  # type: ignore[arg-type]
-        opts.check()
-        return opts
+        return options_from_kwargs(cls, "paper", options, tuple_fields=("passes", "search", "coarse_radius"))
 
     def check(self) -> None:
-        if self.gradient not in GRADIENT_KINDS:
-            raise InpaintInputError(f"gradient must be one of {GRADIENT_KINDS}, got {self.gradient!r}")
-        if self.fusion not in FUSION_MODES:
-            raise InpaintInputError(f"fusion must be one of {FUSION_MODES}, got {self.fusion!r}")
-        for name in ("block", "coarse_block"):
-            v = getattr(self, name)
-            if v < 3 or v % 2 == 0:
-                raise InpaintInputError(f"{name} must be an odd number ≥ 3, got {v}")
-        if not 0 <= self.levels <= 6:
-            raise InpaintInputError(f"levels must be in 0..6, got {self.levels}")
-        if self.domain not in ("inverse", "depth"):
-            raise InpaintInputError(f"domain must be 'inverse' or 'depth', got {self.domain!r}")
+        check_shared_options(self, blocks=("block", "coarse_block"))
         if not self.passes or min(self.passes) < 0 or not self.search or min(self.search) < 0 or self.iters < 0:
             raise InpaintInputError("passes, search and iters must be non-negative (and passes/search non-empty)")
         if not 0 <= self.overlap < self.block // 2 or self.w_depth < 0 or self.match_threshold <= 0:

@@ -31,6 +31,7 @@ import math
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
+from typing import Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -54,6 +55,53 @@ ENERGY_EPS = 1e-4  # working units²: floor of a target's structure energy in th
 Q_CLIP = 10.0  # quality q = −min(Sim/energy, Q_CLIP)
 INVERSE_REF_M = 10.0  # u = INVERSE_REF_M / depth: u = 1 at 10 m, 5 at 2 m
 U_MIN = INVERSE_REF_M / 1000.0  # filled inverse depth is kept ≥ this (≤ 1 km)
+
+
+_Options = TypeVar("_Options")
+
+
+def options_from_kwargs(cls: type[_Options], method: str, options: dict[str, object],
+                        tuple_fields: tuple[str, ...] = ()) -> _Options:
+    """An options dataclass of the paper's method (``paper-greedy``: :class:`PaperOptions`, ``paper``:
+    ``inpaint.c2f.C2FOptions``) from keyword options: unknown names are an error naming ``method``; each of
+    ``tuple_fields`` given as a number or a list becomes a tuple of ints; the result is checked (its ``check()``)."""
+    names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(options) - names)
+    if unknown:
+        raise InpaintInputError(f"unknown option(s) for method '{method}': {unknown}; known: {sorted(names)}")
+    for key in tuple_fields:
+        v = options.get(key)
+        if key in options and not isinstance(v, tuple):
+            options[key] = tuple(int(x) for x in v) if isinstance(v, list) else (int(v),)  # type: ignore[call-overload]
+    opts = cls(**options)
+    opts.check()  # type: ignore[attr-defined]
+    return opts
+
+
+class _SharedOptions(Protocol):
+    gradient: str
+    fusion: str
+    levels: int
+    domain: str
+
+
+def check_shared_options(opts: _SharedOptions, blocks: tuple[str, ...]) -> None:
+    """The checks both formulations share: ``gradient``, ``fusion``, ``levels`` (0..6), ``domain`` and the block
+    sizes named in ``blocks`` (odd, ≥ 3)."""
+    gradient, fusion = opts.gradient, opts.fusion
+    if gradient not in GRADIENT_KINDS:
+        raise InpaintInputError(f"gradient must be one of {GRADIENT_KINDS}, got {gradient!r}")
+    if fusion not in FUSION_MODES:
+        raise InpaintInputError(f"fusion must be one of {FUSION_MODES}, got {fusion!r}")
+    for name in blocks:
+        v = getattr(opts, name)
+        if v < 3 or v % 2 == 0:
+            raise InpaintInputError(f"{name} must be an odd number ≥ 3, got {v}")
+    levels, domain = opts.levels, opts.domain
+    if not 0 <= levels <= 6:
+        raise InpaintInputError(f"levels must be in 0..6, got {levels}")
+    if domain not in ("inverse", "depth"):
+        raise InpaintInputError(f"domain must be 'inverse' or 'depth', got {domain!r}")
 
 
 @dataclass(frozen=True)
@@ -90,32 +138,14 @@ class PaperOptions:
 
     @classmethod
     def from_kwargs(cls, **options: object) -> PaperOptions:
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(options) - names)
-        if unknown:
-            raise InpaintInputError(f"unknown option(s) for method 'paper': {unknown}; known: {sorted(names)}")
-        if "radius" in options and not isinstance(options["radius"], tuple):
-            r = options["radius"]
-            options["radius"] = tuple(r) if isinstance(r, (list, tuple)) else (int(r),)
-        opts = cls(**options)  # type: ignore[arg-type]
-        opts.check()
-        return opts
+        return options_from_kwargs(cls, "paper-greedy", options, tuple_fields=("radius",))
 
     def check(self) -> None:
-        if self.gradient not in GRADIENT_KINDS:
-            raise InpaintInputError(f"gradient must be one of {GRADIENT_KINDS}, got {self.gradient!r}")
-        if self.fusion not in FUSION_MODES:
-            raise InpaintInputError(f"fusion must be one of {FUSION_MODES}, got {self.fusion!r}")
-        if self.block < 3 or self.block % 2 == 0:
-            raise InpaintInputError(f"block must be an odd number ≥ 3, got {self.block}")
-        if not 0 <= self.levels <= 6:
-            raise InpaintInputError(f"levels must be in 0..6, got {self.levels}")
+        check_shared_options(self, blocks=("block",))
         if not self.radius or min(self.radius) < 1:
             raise InpaintInputError(f"radius must be positive, got {self.radius}")
         if self.source not in ("current", "original"):
             raise InpaintInputError(f"source must be 'current' or 'original', got {self.source!r}")
-        if self.domain not in ("inverse", "depth"):
-            raise InpaintInputError(f"domain must be 'inverse' or 'depth', got {self.domain!r}")
         if self.max_blocks < 1 or self.w_depth < 0 or self.match_threshold <= 0:
             raise InpaintInputError("max_blocks must be ≥ 1, w_depth ≥ 0 and match_threshold > 0")
 

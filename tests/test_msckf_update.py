@@ -11,6 +11,7 @@ from msckf.rotation import so3_exp
 from msckf.state import CloneStore
 from msckf.synthetic import iterate, make_world, rosario_extrinsics
 from msckf.update import (
+    FeatureBatch,
     MeasurementSpec,
     ekf_update_information,
     find_redundant_clones,
@@ -404,3 +405,34 @@ def test_stereo_front_end_gates_with_its_own_noise_and_the_depth_front_end_keeps
     assert filter_config(cfg, "depth") is cfg
     off = load_config({"stereo_gate_noise": 0.0, "gate_noise": 0.002})
     assert filter_config(off, "stereo").update.gate_noise == 0.002
+
+
+def test_gate_statistic_stays_large_for_a_feature_with_a_huge_jacobian():
+    """A real feature (tests/data/gate_huge_jacobian_feature.npz: the clone covariance blocks and measurement
+    blocks recorded at 33.9 s of a 120 s stereo run of rosario-like-01, seed 4) whose point lies nearly in one
+    clone's image plane: Jacobian ≈ 6e7 and residuals of thousands of normalised units there. The Schur-complement
+    form rᵀS⁻¹r − bᵀC⁻¹b that the gate used gave γ = −9.7e9 with the stereo gate's pixel σ (catastrophic
+    cancellation), so the gate accepted it and the update moved the velocity by 5 m/s; the run diverged 10 s later.
+    γ must be large (rejected), never negative."""
+    from pathlib import Path
+
+    from scipy.stats import chi2
+
+    z = np.load(Path(__file__).parent / "data" / "gate_huge_jacobian_feature.npz")
+    batch = FeatureBatch(np.array([[0, 1]]), z["Hx"], z["Hf"], z["r"], z["rows"])
+    P, sigma = z["P"], float(z["sigma"])
+    threshold = chi2.ppf(0.95, int(batch.rows.sum()) - 3)
+    for pixel_sigma in (None, 0.0005):
+        assert gating_chi2(P, batch, sigma, pixel_sigma)[0] > 1e3 * threshold
+    # the former formula, kept here as the reference of the failure
+    k, n, R, _ = batch.Hx.shape
+    S = np.zeros((n * R, n * R))
+    for i in range(n):
+        for j in range(n):
+            Pij = P[21 + 6 * i:27 + 6 * i, 21 + 6 * j:27 + 6 * j]
+            S[i * R:(i + 1) * R, j * R:(j + 1) * R] = batch.Hx[0, i] @ Pij @ batch.Hx[0, j].T
+    S += np.diag(np.tile([0.0005 ** 2] * 4 + [sigma ** 2] * (R - 4), n))
+    r, Hf = batch.r.reshape(-1), batch.Hf.reshape(-1, 3)
+    Xr, Xf = np.linalg.solve(S, r), np.linalg.solve(S, Hf)
+    b_ = Hf.T @ Xr
+    assert r @ Xr - b_ @ np.linalg.solve(Hf.T @ Xf, b_) < 0
