@@ -68,7 +68,7 @@ def top_per_group(group: np.ndarray, key: np.ndarray, quota: np.ndarray) -> np.n
 
 def exclusion_mask(px: np.ndarray, width: int, height: int, radius: int) -> np.ndarray:
     """uint8 (H, W) mask, 255 where a new feature may be detected: 0 within Chebyshev ``radius`` of ``px``."""
-    mask = np.full((height, width), 255, dtype=np.uint8)
+    mask: np.ndarray = np.full((height, width), 255, dtype=np.uint8)
     if len(px):
         x = px[:, 0].astype(np.int64)  # S-MSCKF truncates to int
         y = px[:, 1].astype(np.int64)
@@ -119,7 +119,7 @@ def detect_fast_in_cells(
         kps = detector.detect(image[cy0:cy1, cx0:cx1], mask[cy0:cy1, cx0:cx1])
         if not kps:
             continue
-        pts = cv2.KeyPoint_convert(kps).astype(np.float64) + (cx0, cy0)
+        pts = cv2.KeyPoint_convert(kps).astype(np.float64) + (cx0, cy0)  # type: ignore[attr-defined]
         resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
         xi = np.rint(pts[:, 0]).astype(np.int64)
         yi = np.rint(pts[:, 1]).astype(np.int64)
@@ -139,7 +139,7 @@ def _detect_fast_whole_image(detector: cv2.FastFeatureDetector, image: np.ndarra
     kps = detector.detect(image, mask)
     if not kps:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.int64)
-    pts = cv2.KeyPoint_convert(kps).astype(np.float64)
+    pts = cv2.KeyPoint_convert(kps).astype(np.float64)  # type: ignore[attr-defined]
     resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
     # Integer corner pixels: floor(x · cols / W) is the cell whose cell_bounds hold x.
     cell = cell_index(np.rint(pts), width, height, rows, cols)

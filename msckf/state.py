@@ -51,9 +51,9 @@ class ImuState:
     b_a: np.ndarray
     R_c_i: np.ndarray
     p_i_c: np.ndarray
-    R_w_i_null: np.ndarray = field(default=None)  # type: ignore[assignment]
-    p_null: np.ndarray = field(default=None)  # type: ignore[assignment]
-    v_null: np.ndarray = field(default=None)  # type: ignore[assignment]
+    R_w_i_null: np.ndarray = field(default=None)  # type: ignore[arg-type]
+    p_null: np.ndarray = field(default=None)  # type: ignore[arg-type]
+    v_null: np.ndarray = field(default=None)  # type: ignore[arg-type]
     id: int = 0
 
     def __post_init__(self) -> None:

@@ -430,7 +430,7 @@ def schur_information(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, n
     B = HxT @ Hf                                                          # H_xᵀH_f per pair, (k, n, 6, 3)
     hr = (HfT @ r[..., None]).sum(axis=1)[..., 0]                         # H_fᵀr, (k, 3)
     Cinv = np.linalg.inv(Cf)
-    Bg = np.zeros((k, m + 1, 6, 3))
+    Bg: np.ndarray = np.zeros((k, m + 1, 6, 3))
     Bg[np.arange(k)[:, None], lp] = B                                     # padding lands on the dummy column
     Bg = Bg[:, :m].reshape(k, 6 * m, 3)
     E = Bg @ Cinv                                                         # (k, 6m, 3)
@@ -572,7 +572,7 @@ def qr_update(P: np.ndarray, batch: FeatureBatch, sigma: float, n_clones: int) -
         return np.zeros(P.shape[0]), P
     ncol = H.shape[1]
     if H.shape[0] > ncol:
-        Raug = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")
+        Raug: np.ndarray = np.linalg.qr(np.concatenate([H, r[:, None]], axis=1), mode="r")  # type: ignore[assignment]
         H, r = Raug[:ncol, :ncol], Raug[:ncol, ncol]
     idx = IMU_DIM + _block_columns(active)                                # state columns of H
     P_c = P[:, idx]                                                       # (n, c)

@@ -73,7 +73,7 @@ class Msckf:
             from msckf.frontend import DepthFrontend, StereoFrontend  # imported lazily (OpenCV set-up)
             cls = StereoFrontend if variant == "stereo" else DepthFrontend
             frontend = cls(self.config.frontend, rig, rig.T_left_imu, self.seed)
-        self.frontend = frontend
+        self.frontend: Any = frontend  # StereoFrontend or DepthFrontend (or a test's): process() differs by variant
         self.last_observations: FeatureObservations | None = None
         self.n_frames = 0
 
