@@ -69,9 +69,9 @@ def options_from_kwargs(cls: type[_Options], method: str, options: dict[str, obj
     unknown = sorted(set(options) - names)
     if unknown:
         raise InpaintInputError(f"unknown option(s) for method '{method}': {unknown}; known: {sorted(names)}")
-    for key in tuple_fields:
-        v = options.get(key)
-        if key in options and not isinstance(v, tuple):
+    for key in set(tuple_fields) & set(options):
+        v = options[key]
+        if not isinstance(v, tuple):
             options[key] = tuple(int(x) for x in v) if isinstance(v, list) else (int(v),)  # type: ignore[call-overload]
     opts = cls(**options)
     opts.check()  # type: ignore[attr-defined]
@@ -88,20 +88,18 @@ class _SharedOptions(Protocol):
 def check_shared_options(opts: _SharedOptions, blocks: tuple[str, ...]) -> None:
     """The checks both formulations share: ``gradient``, ``fusion``, ``levels`` (0..6), ``domain`` and the block
     sizes named in ``blocks`` (odd, ≥ 3)."""
-    gradient, fusion = opts.gradient, opts.fusion
-    if gradient not in GRADIENT_KINDS:
-        raise InpaintInputError(f"gradient must be one of {GRADIENT_KINDS}, got {gradient!r}")
-    if fusion not in FUSION_MODES:
-        raise InpaintInputError(f"fusion must be one of {FUSION_MODES}, got {fusion!r}")
+    if opts.gradient not in GRADIENT_KINDS:
+        raise InpaintInputError(f"gradient must be one of {GRADIENT_KINDS}, got {opts.gradient!r}")
+    if opts.fusion not in FUSION_MODES:
+        raise InpaintInputError(f"fusion must be one of {FUSION_MODES}, got {opts.fusion!r}")
     for name in blocks:
         v = getattr(opts, name)
         if v < 3 or v % 2 == 0:
             raise InpaintInputError(f"{name} must be an odd number ≥ 3, got {v}")
-    levels, domain = opts.levels, opts.domain
-    if not 0 <= levels <= 6:
-        raise InpaintInputError(f"levels must be in 0..6, got {levels}")
-    if domain not in ("inverse", "depth"):
-        raise InpaintInputError(f"domain must be 'inverse' or 'depth', got {domain!r}")
+    if not 0 <= opts.levels <= 6:
+        raise InpaintInputError(f"levels must be in 0..6, got {opts.levels}")
+    if opts.domain not in ("inverse", "depth"):
+        raise InpaintInputError(f"domain must be 'inverse' or 'depth', got {opts.domain!r}")
 
 
 @dataclass(frozen=True)

@@ -274,33 +274,33 @@ def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float, pixel_sigma: f
     # arithmetic but cancels catastrophically when a feature's Jacobian is huge (a point nearly in a clone's image
     # plane: measured on a 120 s stereo run, γ = −9.7e9 for a feature with 4,000-unit residuals, which the gate
     # then accepted and which moved the velocity by 5 m/s in one update).
+    L, pd = _cholesky_each(S)
+    sel = slice(None) if pd.all() else pd
+    W = np.linalg.solve(L[sel], np.concatenate([r[sel], Hf[sel]], axis=2))
+    wr, wf = W[..., :1], W[..., 1:]
+    Q, Rq = np.linalg.qr(wf)
+    full_rank = np.prod(np.diagonal(Rq, axis1=1, axis2=2) ** 2, axis=1) > 1e-300   # det(H̃fᵀH̃f) > 0
+    e = wr - Q @ (np.swapaxes(Q, 1, 2) @ wr)
     gamma = np.full(k, np.inf)
-    for idx in _cholesky_groups(S):
-        L = np.linalg.cholesky(S[idx])
-        W = np.linalg.solve(L, np.concatenate([r[idx], Hf[idx]], axis=2))
-        wr, wf = W[..., :1], W[..., 1:]
-        Q, Rq = np.linalg.qr(wf)
-        full_rank = np.prod(np.diagonal(Rq, axis1=1, axis2=2) ** 2, axis=1) > 1e-300   # det(H̃fᵀH̃f) > 0
-        e = wr - Q @ (np.swapaxes(Q, 1, 2) @ wr)
-        gamma[idx[full_rank]] = np.sum(e * e, axis=(1, 2))[full_rank]
+    gamma[np.flatnonzero(pd)[full_rank]] = np.sum(e * e, axis=(1, 2))[full_rank]
     return gamma
 
 
-def _cholesky_groups(S: np.ndarray) -> list[np.ndarray]:
-    """Index arrays of the (k, m, m) matrices ``S`` that have a Cholesky factor, in as few groups as possible: all
-    at once when every one is positive definite, else each alone (those that are not get none: γ stays inf)."""
+def _cholesky_each(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factors of the (k, m, m) matrices ``S`` and which of them are positive definite ((k,) bool): one
+    batched call when all are (the usual case), else one call each (the others keep a zero factor)."""
     try:
-        np.linalg.cholesky(S)
-        return [np.arange(len(S))]
+        return np.linalg.cholesky(S), np.ones(len(S), dtype=bool)
     except np.linalg.LinAlgError:
-        out = []
+        L = np.zeros_like(S)
+        pd = np.zeros(len(S), dtype=bool)
         for i in range(len(S)):
             try:
-                np.linalg.cholesky(S[i])
-                out.append(np.array([i]))
+                L[i] = np.linalg.cholesky(S[i])
+                pd[i] = True
             except np.linalg.LinAlgError:
                 pass
-        return out
+        return L, pd
 
 
 def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarray, sigma: float,

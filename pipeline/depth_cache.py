@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline.atomic import write_json_atomic
 from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize_mm
-from pipeline.png_chunks import read_chunk, write_chunk
+from pipeline.png_chunks import EMPTY, chunk_from_npz, write_chunk
 from pipeline.png_codec import PNG_COMPACT, decode_png, encode_png
 
 DEFAULT_CHUNK_SIZE = 32
@@ -62,7 +62,7 @@ class _Encoded:
         """Encode ``frame``; ``depth_mm``: its uint16 millimetre map when the caller already has it (not rounded
         again)."""
         mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm
-        grey = _NO_GREY if frame.left_rect_grey is None else _png(np.ascontiguousarray(frame.left_rect_grey))
+        grey = EMPTY if frame.left_rect_grey is None else _png(np.ascontiguousarray(frame.left_rect_grey))
         return cls(int(frame.stamp_ns), int(frame.index), _png(mm), grey, frame.hole_ratio)
 
     def decode(self, grey: bool = True) -> DepthFrame:
@@ -72,24 +72,16 @@ class _Encoded:
                           _unpng(self.grey_png) if grey and self.grey_png.size else None)
 
 
-#: The stored "grey image" of a frame that carries none (an empty byte array).
-_NO_GREY = np.zeros(0, dtype=np.uint8)
-
-
 def _read_frames(path: Path) -> dict[int, _Encoded]:
     """The frames of one chunk file: the shared layout (:mod:`pipeline.png_chunks`), or the layout this cache
     wrote before it (``stamps_ns``, ``indices``, optional ``hole_ratios``, ``depth_K`` / ``grey_K`` per frame)."""
     with np.load(path) as z:
-        legacy = "indices" in z.files
-    if not legacy:
-        c = read_chunk(path)
-        holes = c.columns.get("hole_ratio")
-        has_grey = "grey" in c.layers
-        return {int(index): _Encoded(int(stamp), int(index), c.blob("depth", k),
-                                     c.blob("grey", k) if has_grey else _NO_GREY,
-                                     float(holes[k]) if holes is not None else float("nan"))
-                for k, (stamp, index) in enumerate(zip(c.stamp_ns.tolist(), c.index.tolist()))}
-    with np.load(path) as z:
+        if "indices" not in z.files:
+            c = chunk_from_npz(z)
+            holes = c.columns.get("hole_ratio")
+            return {int(index): _Encoded(int(stamp), int(index), c.blob("depth", k), c.blob("grey", k),
+                                         float(holes[k]) if holes is not None else float("nan"))
+                    for k, (stamp, index) in enumerate(zip(c.stamp_ns.tolist(), c.index.tolist()))}
         holes_old = z["hole_ratios"].tolist() if "hole_ratios" in z.files else None
         return {int(index): _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"],
                                      float(holes_old[k]) if holes_old is not None else float("nan"))

@@ -24,7 +24,8 @@ import numpy as np
 
 from pipeline.atomic import atomic_path
 
-_EMPTY = np.zeros(0, dtype=np.uint8)
+#: The PNG stream of a frame that has no image in a layer.
+EMPTY = np.zeros(0, dtype=np.uint8)
 
 
 def write_chunk(path: Path | str, index: Sequence[int], stamp_ns: Sequence[int],
@@ -41,11 +42,12 @@ def write_chunk(path: Path | str, index: Sequence[int], stamp_ns: Sequence[int],
     for name, values in (columns or {}).items():
         arrays[name] = np.asarray(values)
     for name, blobs in layers.items():
-        if all(b is None for b in blobs):
+        streams = [EMPTY if b is None else np.frombuffer(b, np.uint8) if isinstance(b, bytes) else
+                   np.asarray(b, np.uint8).reshape(-1) for b in blobs]
+        if not any(len(b) for b in streams):
             continue
-        raw = [b"" if b is None else (b if isinstance(b, bytes) else np.asarray(b, np.uint8).tobytes()) for b in blobs]
-        arrays[name] = np.frombuffer(b"".join(raw), np.uint8)
-        arrays[name + "_off"] = np.cumsum([0] + [len(b) for b in raw]).astype(np.int64)
+        arrays[name] = np.concatenate(streams)
+        arrays[name + "_off"] = np.cumsum([0] + [len(b) for b in streams]).astype(np.int64)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path, suffix=".npz") as tmp:
@@ -62,13 +64,12 @@ class Chunk:
     layers: dict[str, tuple[np.ndarray, np.ndarray]]
 
     def blob(self, layer: str, k: int) -> np.ndarray:
-        """Frame ``k``'s (position in the chunk) PNG stream of ``layer``; empty when it has none.
-
-        Raises:
-            KeyError: no frame of the chunk has ``layer``.
-        """
+        """Frame ``k``'s (position in the chunk) PNG stream of ``layer``; :data:`EMPTY` when it has none (also when
+        no frame of the chunk has that layer)."""
+        if layer not in self.layers:
+            return EMPTY
         data, off = self.layers[layer]
-        return data[off[k]:off[k + 1]] if off[k + 1] > off[k] else _EMPTY
+        return data[off[k]:off[k + 1]] if off[k + 1] > off[k] else EMPTY
 
     def position(self, index: int) -> int | None:
         """Position of frame ``index`` in the chunk, or None."""
@@ -84,11 +85,16 @@ def read_chunk(path: Path | str) -> Chunk:
         truncated or garbled file (the caller decides whether to recompute it).
     """
     with np.load(path) as z:
-        files = set(z.files)
-        layers = {name: (z[name], z[name + "_off"]) for name in files if name + "_off" in files}
-        skip = {"index", "stamp_ns"} | set(layers) | {name + "_off" for name in layers}
-        columns = {name: z[name] for name in sorted(files - skip)}
-        return Chunk(z["index"], z["stamp_ns"], columns, layers)
+        return chunk_from_npz(z)
 
 
-__all__ = ["Chunk", "read_chunk", "write_chunk"]
+def chunk_from_npz(z: np.lib.npyio.NpzFile) -> Chunk:
+    """The :class:`Chunk` of an open ``.npz`` in this layout (for a reader that has already opened the file)."""
+    files = set(z.files)
+    layers = {name: (z[name], z[name + "_off"]) for name in files if name + "_off" in files}
+    skip = {"index", "stamp_ns"} | set(layers) | {name + "_off" for name in layers}
+    columns = {name: z[name] for name in sorted(files - skip)}
+    return Chunk(z["index"], z["stamp_ns"], columns, layers)
+
+
+__all__ = ["EMPTY", "Chunk", "chunk_from_npz", "read_chunk", "write_chunk"]

@@ -33,6 +33,7 @@ from pipeline.inpaint_stage import InpaintParams
 from pipeline.replay import ReplayFrame, ReplayRun, write_replay
 from pipeline.replay_features import feature_classes
 from pipeline.report_stage import options_for
+from pipeline.rosario_layout import TOPIC_LEFT_IMAGE
 from pipeline.run_job import ESTIMATE_NAME, FRAMES_NAME
 
 
@@ -149,10 +150,11 @@ def _recorded_caches(loaded: Sequence[LoadedRun], bag_identity: str) -> tuple[De
     parts = [lr.record.get("input_key_parts") or {} for lr in loaded]
     depth_keys = [p["depth"] for p in parts if p.get("depth")]
     inpaint_keys = [p["inpaint"] for p in parts if p.get("inpaint")]
-    depth_key = depth_keys[0] if depth_keys else DepthParams().key()
+    default_depth_key = DepthParams().key()
+    depth_key = depth_keys[0] if depth_keys else default_depth_key
     if inpaint_keys:
         inpaint_key = inpaint_keys[0]
-    elif depth_key == DepthParams().key():
+    elif depth_key == default_depth_key:
         inpaint_key = InpaintParams().key()
     else:
         inpaint_key = None
@@ -161,7 +163,7 @@ def _recorded_caches(loaded: Sequence[LoadedRun], bag_identity: str) -> tuple[De
         if key is None:
             return None
         store = DepthCache(root, bag_identity, CacheKey(key))
-        return store if store.get(0, grey=False) is not None else None  # complete, or the first --max-frames frames
+        return store if store.has(0) else None  # complete, or the first --max-frames frames
 
     return opened(depth_key), opened(inpaint_key)
 
@@ -241,7 +243,7 @@ def replay_runs(run_dirs: Sequence[Path], out: Path, every: int = 1, max_frames:
             ext = external_run(track, gt, vio.eval_options)
             ext.T_body_cam = T_imu_cam
             runs.append(ext)
-    n = seq.count("/stereo/left/image_raw") if max_frames is None else max_frames
+    n = seq.count(TOPIC_LEFT_IMAGE) if max_frames is None else max_frames
     exact = _exact_depth_reader(info["bag"])
     notes = [f"Images of every {every}-th frame (--every {every}); poses and metrics at full rate."] if every > 1 \
         else []

@@ -101,12 +101,17 @@ class DepthChunkReader:
             self._cache = (c, read_chunk(path))
         return self._cache[1]
 
-    def get(self, index: int, key: str = "depth") -> np.ndarray:
-        """Decoded image ``key`` of frame ``index``: depth/rdepth as float32 metres (NaN = none), else uint8."""
+    def _find(self, index: int) -> tuple[Chunk, int]:
+        """The chunk holding frame ``index`` and the frame's position in it (IndexError when it is not there)."""
         data = self._load(index // self.chunk)
         pos = data.position(index)
         if pos is None:
             raise IndexError(f"frame {index} not in {self.folder}")
+        return data, pos
+
+    def get(self, index: int, key: str = "depth") -> np.ndarray:
+        """Decoded image ``key`` of frame ``index``: depth/rdepth as float32 metres (NaN = none), else uint8."""
+        data, pos = self._find(index)
         if key not in data.layers:
             raise KeyError(f"{self.folder}: no {key!r} stored")
         img = _unpng(data.blob(key, pos))
@@ -115,10 +120,7 @@ class DepthChunkReader:
         return img
 
     def stamp_ns(self, index: int) -> int:
-        data = self._load(index // self.chunk)
-        pos = data.position(index)
-        if pos is None:
-            raise IndexError(f"frame {index} not in {self.folder}")
+        data, pos = self._find(index)
         return int(data.stamp_ns[pos])
 
 
