@@ -4,14 +4,16 @@ Layout (under ``cache_root``, by default ``pipeline.paths.cache_dir()``)::
 
     depth/<bag identity>/<params key>/
         meta.json              params, bag identity, chunk size, and ``n_frames`` once the sequence is complete
-        chunk_000000.npz       frames [0, chunk_size): indices, stamps, hole ratios, PNG-encoded depth and grey images
+        chunk_000000.npz       frames [0, chunk_size): indices, stamps, hole ratios, encoded depth and grey images
                                (the chunk layout of :mod:`pipeline.png_chunks`; chunks of the earlier layout
                                are still read)
 
-Depth is stored as 16-bit PNG of whole millimetres (0 = hole) and the rectified left grey image as 8-bit PNG
-(lossless, compact: PNG's row filters suit images far better than raw zlib). The grey image is stored only where
-a frame carries one (the raw depth stage's frames; the inpainting stage stores none: its frames are read for their
-depth only) and decoded only on request (``grey=True``). Chunk files are written atomically.
+Depth is stored as whole millimetres (0 = hole) in an LZ4 stream of the uint16 map (:mod:`pipeline.lz4_codec`:
+12× faster to decode than the 16-bit PNG written before, which every depth-variant run does once or twice per
+frame; caches holding PNG depth are still read, the two decode to the same values) and the rectified left grey
+image as 8-bit PNG (lossless, compact: PNG's row filters suit images far better than raw zlib). The grey image is
+stored only where a frame carries one (the raw depth stage's frames; the inpainting stage stores none: its frames
+are read for their depth only) and decoded only on request (``grey=True``). Chunk files are written atomically.
 The key is the bag's content identity (:meth:`RosarioSequence.identity`) plus :meth:`DepthParams.key` (which
 includes the stage and OpenCV versions), so a changed bag or parameter never reads stale depth.
 """
@@ -32,6 +34,7 @@ import numpy as np
 
 from pipeline.atomic import write_json_atomic
 from pipeline.depth import DepthFrame, DepthParams, compute_depth, decode_depth_mm, encode_depth_mm, quantize_mm
+from pipeline.lz4_codec import decode_lz4_map, encode_lz4_map, is_lz4_map
 from pipeline.png_chunks import EMPTY, chunk_from_npz, write_chunk
 from pipeline.png_codec import PNG_COMPACT, decode_png, encode_png
 
@@ -47,13 +50,19 @@ def _unpng(buf: np.ndarray) -> np.ndarray:
     return decode_png(buf, _WHERE)
 
 
+def _depth_mm(buf: np.ndarray) -> np.ndarray:
+    """The (H, W) uint16 millimetre map of a stored depth stream: LZ4 (written now) or PNG (older caches)."""
+    return decode_lz4_map(buf, _WHERE) if is_lz4_map(buf) else _unpng(buf)
+
+
 @dataclass(frozen=True)
 class _Encoded:
-    """One frame as stored: stamp, index and the two PNG byte arrays (a few hundred kB instead of ~1.5 MB)."""
+    """One frame as stored: stamp, index, the depth stream (LZ4, or PNG in older caches) and the grey image's PNG
+    (a few hundred kB instead of ~1.5 MB)."""
 
     stamp_ns: int
     index: int
-    depth_png: np.ndarray
+    depth_stream: np.ndarray
     grey_png: np.ndarray
     hole_ratio: float = float("nan")  # NaN: a chunk written before hole ratios were stored
 
@@ -63,11 +72,11 @@ class _Encoded:
         again)."""
         mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm
         grey = EMPTY if frame.left_rect_grey is None else _png(np.ascontiguousarray(frame.left_rect_grey))
-        return cls(int(frame.stamp_ns), int(frame.index), _png(mm), grey, frame.hole_ratio)
+        return cls(int(frame.stamp_ns), int(frame.index), encode_lz4_map(mm), grey, frame.hole_ratio)
 
     def decode(self, grey: bool = True) -> DepthFrame:
         """The frame; its grey image only when ``grey`` and one was stored (else None)."""
-        depth, valid = decode_depth_mm(_unpng(self.depth_png))
+        depth, valid = decode_depth_mm(_depth_mm(self.depth_stream))
         return DepthFrame(self.stamp_ns, self.index, depth, valid,
                           _unpng(self.grey_png) if grey and self.grey_png.size else None)
 
@@ -109,7 +118,7 @@ class CacheKey:
 class DepthCache:
     """Depth frames of one bag and one parameter set, stored in chunks of ``chunk_size`` frames.
 
-    Frames are held encoded (PNG) in memory too, so a chunk in flight costs ~10 MB, not ~50 MB.
+    Frames are held encoded (LZ4 / PNG) in memory too, so a chunk in flight costs ~10 MB, not ~50 MB.
 
     Args:
         cache_root: root folder (``depth/`` is created below it).
@@ -202,7 +211,7 @@ class DepthCache:
         if not self.meta_path.exists():
             self._write_meta()
         write_chunk(self._chunk_path(chunk), [f.index for f in ordered], [f.stamp_ns for f in ordered],
-                    {"depth": [f.depth_png for f in ordered], "grey": [f.grey_png for f in ordered]},
+                    {"depth": [f.depth_stream for f in ordered], "grey": [f.grey_png for f in ordered]},
                     {"hole_ratio": np.array([f.hole_ratio for f in ordered], dtype=np.float64)})
         self._loaded = (chunk, dict(frames))
 
@@ -243,14 +252,14 @@ class DepthCache:
 
     def hole_ratios(self, stop: int) -> np.ndarray | None:
         """(stop,) hole ratio of frames ``0 .. stop-1`` without decoding their images (chunks from before the
-        ratios were stored decode the depth PNG), or None when a frame is missing."""
+        ratios were stored decode the depth), or None when a frame is missing."""
         out = np.empty(stop, dtype=np.float64)
         for index in range(stop):
             enc = self._encoded(index)
             if enc is None:
                 return None
             h = enc.hole_ratio
-            out[index] = h if np.isfinite(h) else float(1.0 - decode_depth_mm(_unpng(enc.depth_png))[1].mean())
+            out[index] = h if np.isfinite(h) else float(1.0 - decode_depth_mm(_depth_mm(enc.depth_stream))[1].mean())
         return out
 
     def iter(self, start: int = 0, stop: int | None = None, grey: bool = True) -> Iterator[DepthFrame]:

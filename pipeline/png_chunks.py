@@ -1,5 +1,6 @@
 """The one on-disk layout of agrivio's chunked image stores: a ``.npz`` file per chunk of consecutive frames,
-each frame a few PNG-encoded layers (:mod:`pipeline.png_codec`). Used by the depth-stage cache
+each frame a few encoded image layers (PNG, :mod:`pipeline.png_codec`; the depth cache's depth layer is an LZ4 map
+stream, :mod:`pipeline.lz4_codec`: the layout holds any byte streams). Used by the depth-stage cache
 (:mod:`pipeline.depth_cache`: layers ``depth`` and ``grey``, column ``hole_ratio``) and the simulator's
 ground-truth chunks (:mod:`pipeline.sim.export`: ``depth``, ``label``, ``glare``, optionally ``rdepth``/``rlabel``).
 
@@ -7,7 +8,7 @@ Layout of one chunk (all arrays of ``np.savez``, in this order):
 
 - ``index`` (n,) int64 frame indices, ``stamp_ns`` (n,) int64 stamps;
 - per-frame numeric columns, e.g. ``hole_ratio`` (n,) float64;
-- per layer ``NAME``: ``NAME`` (total,) uint8, the frames' PNG byte streams concatenated, and ``NAME_off``
+- per layer ``NAME``: ``NAME`` (total,) uint8, the frames' byte streams concatenated, and ``NAME_off``
   (n + 1,) int64 offsets; frame ``k``'s stream is ``NAME[NAME_off[k]:NAME_off[k + 1]]`` (empty: the frame has no
   such image). A layer no frame has is left out.
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from pipeline.atomic import atomic_path
 
-#: The PNG stream of a frame that has no image in a layer.
+#: The stream of a frame that has no image in a layer.
 EMPTY = np.zeros(0, dtype=np.uint8)
 
 
@@ -35,7 +36,7 @@ def write_chunk(path: Path | str, index: Sequence[int], stamp_ns: Sequence[int],
 
     Args:
         index, stamp_ns: the frames' indices and stamps (ns).
-        layers: name → n PNG byte streams (``bytes`` or uint8 arrays; None or empty: the frame has none).
+        layers: name → n encoded byte streams (``bytes`` or uint8 arrays; None or empty: the frame has none).
         columns: name → (n,) per-frame numeric values.
     """
     arrays: dict[str, np.ndarray] = {"index": np.asarray(index, np.int64), "stamp_ns": np.asarray(stamp_ns, np.int64)}
@@ -64,7 +65,7 @@ class Chunk:
     layers: dict[str, tuple[np.ndarray, np.ndarray]]
 
     def blob(self, layer: str, k: int) -> np.ndarray:
-        """Frame ``k``'s (position in the chunk) PNG stream of ``layer``; :data:`EMPTY` when it has none (also when
+        """Frame ``k``'s (position in the chunk) stream of ``layer``; :data:`EMPTY` when it has none (also when
         no frame of the chunk has that layer)."""
         if layer not in self.layers:
             return EMPTY

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from pipeline.bag_reader import RosarioSequence
 from pipeline.cli import main
@@ -97,8 +98,8 @@ def test_hole_ratios_are_read_without_decoding_images_and_old_chunks_still_work(
         cache.put(frames[-1])
     cache.flush()
     decoded = []
-    real_unpng = dc._unpng
-    monkeypatch.setattr(dc, "_unpng", lambda buf: decoded.append(1) or real_unpng(buf))
+    real_decode = dc._depth_mm
+    monkeypatch.setattr(dc, "_depth_mm", lambda buf: decoded.append(1) or real_decode(buf))
     fresh = DepthCache(tmp_path, "bag-h", DepthParams())
     assert np.allclose(fresh.hole_ratios(4), [f.hole_ratio for f in frames]) and not decoded
     assert fresh.hole_ratios(5) is None                               # frame 4 is not cached
@@ -122,6 +123,53 @@ def test_hole_ratios_are_read_without_decoding_images_and_old_chunks_still_work(
     for f in frames[:2]:
         got = oldest.get(f.index)
         assert np.array_equal(got.valid, f.valid) and np.array_equal(got.left_rect_grey, f.left_rect_grey)
+
+
+def test_depth_is_stored_as_lz4_and_caches_with_png_depth_read_the_same_values(tmp_path):
+    """Issue 16: the depth layer is an LZ4 map stream (decoded 12× faster than the PNG written before); a chunk
+    whose depth streams are 16-bit PNG (every cache written before) reads back the same millimetres."""
+    from pipeline.lz4_codec import decode_lz4_map, is_lz4_map
+    from pipeline.png_chunks import read_chunk, write_chunk
+    from pipeline.png_codec import encode_png
+
+    cache = DepthCache(tmp_path, "bag-z", DepthParams(), chunk_size=3)
+    rng = np.random.default_rng(7)
+    frames = []
+    for i in range(3):
+        depth = rng.uniform(0.3, 60.0, (12, 16)).astype(np.float32)
+        depth[rng.random((12, 16)) < 0.3] = np.nan
+        frames.append(DepthFrame(500 + i, i, depth, np.isfinite(depth), rng.integers(0, 255, (12, 16), np.uint8)))
+        cache.put(frames[-1])
+    cache.flush()
+    path = cache.directory / "chunk_000000.npz"
+    c = read_chunk(path)
+    assert all(is_lz4_map(c.blob("depth", k)) for k in range(3))
+    new = [DepthCache(tmp_path, "bag-z", DepthParams()).get(i) for i in range(3)]
+    for f, got in zip(frames, new):
+        expected_mm = np.rint(np.nan_to_num(f.depth_m) * 1000).astype(np.uint16)
+        assert np.array_equal(decode_lz4_map(c.blob("depth", f.index)), expected_mm)
+        assert np.array_equal(got.valid, f.valid) and np.array_equal(got.left_rect_grey, f.left_rect_grey)
+    # the same chunk with PNG depth streams, as caches before issue 16 hold it
+    write_chunk(path, c.index, c.stamp_ns,
+                {"depth": [encode_png(decode_lz4_map(c.blob("depth", k))) for k in range(3)],
+                 "grey": [c.blob("grey", k) for k in range(3)]}, c.columns)
+    assert not any(is_lz4_map(read_chunk(path).blob("depth", k)) for k in range(3))
+    old = [DepthCache(tmp_path, "bag-z", DepthParams()).get(i) for i in range(3)]
+    for a, b in zip(new, old):
+        assert np.array_equal(a.depth_m, b.depth_m, equal_nan=True) and np.array_equal(a.valid, b.valid)
+    assert np.allclose(DepthCache(tmp_path, "bag-z", DepthParams()).hole_ratios(3), [f.hole_ratio for f in frames])
+
+
+def test_lz4_map_streams_are_lossless_and_a_garbled_one_names_its_store():
+    from pipeline.lz4_codec import decode_lz4_map, encode_lz4_map, is_lz4_map
+
+    img = np.random.default_rng(3).integers(0, 65535, (37, 53), dtype=np.uint16)
+    buf = encode_lz4_map(img)
+    assert is_lz4_map(buf) and np.array_equal(decode_lz4_map(buf), img)
+    with pytest.raises(ValueError, match="depth cache"):
+        decode_lz4_map(buf[: len(buf) // 2], "depth cache")
+    with pytest.raises(ValueError, match="uint16"):
+        encode_lz4_map(img.astype(np.float32))
 
 
 def test_frames_without_a_grey_image_store_none_and_a_recorded_key_opens_the_same_cache(tmp_path):
