@@ -43,8 +43,12 @@ def encode_lz4_map(img: np.ndarray) -> np.ndarray:
 
 def is_lz4_map(buf: np.ndarray | bytes) -> bool:
     """Whether ``buf`` starts like a stream of :func:`encode_lz4_map`."""
-    head = bytes(buf[:len(MAGIC)]) if isinstance(buf, bytes) else np.asarray(buf, np.uint8)[:len(MAGIC)].tobytes()
-    return head == MAGIC
+    return bytes(_as_uint8(buf)[:len(MAGIC)]) == MAGIC
+
+
+def _as_uint8(buf: np.ndarray | bytes) -> np.ndarray:
+    """A (n,) uint8 view of a stream (no copy)."""
+    return np.frombuffer(buf, np.uint8) if isinstance(buf, bytes) else np.asarray(buf, np.uint8).reshape(-1)
 
 
 def decode_lz4_map(buf: np.ndarray | bytes, where: str = "an LZ4 map store") -> np.ndarray:
@@ -53,15 +57,15 @@ def decode_lz4_map(buf: np.ndarray | bytes, where: str = "an LZ4 map store") -> 
     Raises:
         ValueError: ``buf`` is not such a stream or is truncated / garbled; the message names ``where``.
     """
-    raw = bytes(buf) if isinstance(buf, bytes) else np.asarray(buf, np.uint8).tobytes()
+    data = _as_uint8(buf)
     n_head = len(MAGIC) + _HEADER.itemsize
-    if len(raw) < n_head or raw[:len(MAGIC)] != MAGIC:
+    if len(data) < n_head or not is_lz4_map(data):
         raise ValueError(f"corrupt depth stream in {where}: not an LZ4 map stream")
-    h, w = (int(v) for v in np.frombuffer(raw[len(MAGIC):n_head], dtype=_HEADER)[0])
+    h, w = (int(v) for v in data[len(MAGIC):n_head].view(_HEADER)[0])
     try:
-        body = lz4.frame.decompress(raw[n_head:])
+        body = lz4.frame.decompress(np.ascontiguousarray(data[n_head:]))  # a view of the stream, not a copy
     except RuntimeError as exc:  # python-lz4 reports a bad frame as RuntimeError
         raise ValueError(f"corrupt depth stream in {where}: {exc}") from None
     if len(body) != 2 * h * w:
         raise ValueError(f"corrupt depth stream in {where}: {len(body)} bytes for a {h}×{w} uint16 map")
-    return np.frombuffer(body, dtype="<u2").reshape(h, w).astype(np.uint16, copy=False)
+    return np.frombuffer(body, dtype="<u2").reshape(h, w).astype(np.uint16, copy=False)  # a view on little-endian
