@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from pipeline.depth_sigma_kernels import filled_sigma_map, raw_sigma_map
 from pipeline.far_field_kernels import geodesic_reach
 
 __all__ = ["DepthSigmaModel", "RAW_DISPARITY_SIGMA_PX", "FILL_CALIBRATION", "FAR_OPEN_SIGMAS", "FAR_OPEN_RADIUS_PX",
@@ -72,6 +73,14 @@ FAR_OPEN_SIGMAS = 5.0
 FAR_OPEN_RADIUS_PX = 63
 
 
+def _f32(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _bool(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=bool)
+
+
 def fill_distance_px(raw_valid: np.ndarray) -> np.ndarray:
     """(H, W) float32 Euclidean distance (px) of every pixel to the nearest raw-valid pixel (0 on valid ones)."""
     if raw_valid.all():
@@ -103,23 +112,29 @@ class DepthSigmaModel:
         """The model for a :class:`msckf.camera.StereoRig` (its rectified fx and baseline)."""
         return cls(float(rig.fx * rig.baseline))
 
+    @property
+    def _k_raw(self) -> np.float32:
+        """σ_d / (f·B) in 1/m (float32): ``σ_Z = Z² · k`` for a measured depth."""
+        return np.float32(self.disparity_sigma_px / self.fx_baseline)
+
     def raw_sigma(self, depth_m: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """(H, W) float32 σ_Z in metres of a raw SGBM map (NaN where not valid)."""
-        z = depth_m.astype(np.float32)
-        s = z * z * np.float32(self.disparity_sigma_px / self.fx_baseline)
-        return np.where(valid, s, np.nan).astype(np.float32)
+        return raw_sigma_map(_f32(depth_m), _bool(valid), self._k_raw)
 
-    def filled_sigma(self, depth_m: np.ndarray, raw_valid: np.ndarray, method: str) -> np.ndarray:
-        """(H, W) float32 σ_Z in metres of an inpainted map: raw σ on measured pixels, fill model in the holes."""
+    def filled_sigma(self, depth_m: np.ndarray, raw_valid: np.ndarray, method: str,
+                     keep: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) float32 σ_Z in metres of an inpainted map: raw σ on measured pixels, fill model in the holes.
+
+        NaN where Z is not finite and positive, and where ``keep`` (optional (H, W) bool) is False. The distance
+        transform is skipped for a method whose fill σ does not grow with distance (``rel_per_px == 0``).
+        """
         rel0, per_px, rel_max = self.fill.get(method) or self.fill.get("default") or FILL_CALIBRATION["default"]
-        z = depth_m.astype(np.float32)
-        dist = fill_distance_px(raw_valid)
-        rel = np.minimum(np.float32(rel_max), np.float32(rel0) + np.float32(per_px) * dist)
-        s_fill = z * rel
-        s_raw = z * z * np.float32(self.disparity_sigma_px / self.fx_baseline)
-        s = np.where(raw_valid, s_raw, np.maximum(s_fill, s_raw))
-        return np.where(np.isfinite(z) & (z > 0), s, np.nan).astype(np.float32)
-
+        raw_valid = _bool(raw_valid)
+        use_dist = per_px != 0
+        dist = fill_distance_px(raw_valid) if use_dist else np.zeros((1, 1), np.float32)
+        keep = np.ones(raw_valid.shape, bool) if keep is None else _bool(keep)
+        return filled_sigma_map(_f32(depth_m), raw_valid, keep, dist, use_dist, np.float32(rel0),
+                                np.float32(per_px), np.float32(rel_max), self._k_raw)
 
     def far_open(self, raw_depth_m: np.ndarray, raw_valid: np.ndarray) -> np.ndarray:
         """(H, W) bool: the holes of a raw map that reach a far-field measurement through the hole itself.
@@ -145,8 +160,7 @@ class DepthSigmaModel:
         metres is :meth:`filled_sigma` (NaN where not valid). ``raw_*``: the raw SGBM map the fill was made from.
         """
         ok = valid & ~self.far_open(raw_depth_m, raw_valid)
-        s = self.filled_sigma(depth_m, raw_valid, method)
-        return ok, np.where(ok, s, np.nan).astype(np.float32)
+        return ok, self.filled_sigma(depth_m, raw_valid, method, keep=ok)
 
 
 def fit_fill_model(rel_err: np.ndarray, dist_px: np.ndarray, rel_max: float = 0.5) -> tuple[float, float, float]:

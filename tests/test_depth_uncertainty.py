@@ -47,6 +47,37 @@ def test_raw_sigma_follows_the_disparity_model_and_fills_are_less_certain():
     assert filled[10, 14] > filled[10, 10] > raw[0, 0]                 # farther into the hole: less certain
 
 
+def _numpy_sigma_maps(model: DepthSigmaModel, depth: np.ndarray, raw_valid: np.ndarray, method: str):
+    """The σ maps as numpy expressions (what the compiled kernels replace): raw σ, filled σ."""
+    rel0, per_px, rel_max = model.fill[method]
+    z = depth.astype(np.float32)
+    k = np.float32(model.disparity_sigma_px / model.fx_baseline)
+    raw = np.where(raw_valid, z * z * k, np.nan).astype(np.float32)
+    rel = np.minimum(np.float32(rel_max), np.float32(rel0) + np.float32(per_px) * fill_distance_px(raw_valid))
+    s = np.where(raw_valid, z * z * k, np.maximum(z * rel, z * z * k))
+    return raw, np.where(np.isfinite(z) & (z > 0), s, np.nan).astype(np.float32)
+
+
+@pytest.mark.parametrize("per_px", [0.0, 0.0031])
+def test_compiled_sigma_maps_equal_the_numpy_expressions_bit_for_bit(per_px):
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.3, 25.0, (37, 53)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.05] = np.nan
+    depth[0, :4] = [0.0, -1.0, np.inf, 7.0]
+    raw_valid = (rng.random(depth.shape) < 0.6) & np.isfinite(depth) & (depth > 0)
+    raw_valid[10:25, 20:40] = False                                    # one large hole: distances up to ~8 px
+    depth[15, 30] = 3.0                                                # a fill where the fill σ beats the raw σ
+    model = DepthSigmaModel(fx_baseline=41.7, disparity_sigma_px=0.545, fill={"m": (0.146, per_px, 0.2)})
+    want_raw, want_filled = _numpy_sigma_maps(model, depth, raw_valid, "m")
+    assert np.array_equal(model.raw_sigma(depth, raw_valid), want_raw, equal_nan=True)
+    got = model.filled_sigma(depth, raw_valid, "m")
+    assert np.array_equal(got, want_filled, equal_nan=True)
+    assert np.isfinite(got[15, 30]) and (per_px == 0) == (got[15, 30] == np.float32(0.146) * depth[15, 30])
+    keep = rng.random(depth.shape) < 0.5
+    assert np.array_equal(model.filled_sigma(depth, raw_valid, "m", keep=keep),
+                          np.where(keep, want_filled, np.nan), equal_nan=True)
+
+
 def test_fills_open_to_the_far_field_carry_no_depth():
     # f·B = 40 px·m, σ_d = 0.5 px, 5 σ → a measured depth ≥ 40 / 2.5 = 16 m is compatible with infinity
     model = DepthSigmaModel(fx_baseline=40.0, disparity_sigma_px=0.5, fill={"m": (0.1, 0.0, 0.5)},
