@@ -18,7 +18,10 @@ ATE RMSE against the simulator's true antenna positions (SE(3), 20 ms, estimate 
 
     .venv/bin/python benchmarks/bench_depth_oracle.py [--presets 02 03] [--seeds 0 1 2] [--duration 10]
         [--methods telea] [--config '{"depth_row": true}'] [--no-sigma] [--no-stereo] [--track-noise 0.01 0.03]
-        [--only-rungs depth-raw exact-everywhere ...]
+        [--structure] [--only-rungs depth-raw exact-everywhere ...]
+
+``--structure`` adds diagnostic rungs that keep SGBM's errors at the tracked points but break their structure
+(shuffled within a frame / within the run, random signs, or Gaussian at the raw σ; ``structure_rungs``).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.depth_oracle import standard_rungs  # noqa: E402
+from pipeline.depth_oracle import standard_rungs, structure_rungs  # noqa: E402
 from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
 from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
@@ -60,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="geodesic reach (px) of the far-field rule (default: pipeline.depth_sigma's)")
     ap.add_argument("--track-noise", nargs="*", type=float, default=[],
                     help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
+    ap.add_argument("--structure", action="store_true",
+                    help="extra diagnostic rungs: SGBM's errors at tracked points shuffled / sign-flipped / "
+                         "replaced by Gaussian noise at the raw σ (pipeline.depth_oracle.structure_rungs)")
     ap.add_argument("--only-rungs", nargs="*", default=None, help="run only these rung names (e.g. to save time)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -73,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
         rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
+        if args.structure:
+            rungs += structure_rungs()
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]
         res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,

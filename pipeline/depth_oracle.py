@@ -41,7 +41,7 @@ from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "Rung", "standard_rungs",
-           "run_backend", "evaluate_rung"]
+           "structure_rungs", "run_backend", "evaluate_rung"]
 
 
 @dataclass
@@ -360,6 +360,67 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     for m in inpaint_methods:
         rungs.append(Rung(f"inpainted[{m}]", inpainted(m), measured=raw_measured))
     return rungs
+
+
+def structure_rungs(noise_seed: int = 0) -> list[Rung]:
+    """Diagnostic rungs that keep SGBM's errors at tracked points but break their structure (issue 17).
+
+    All act on the features of ``depth-raw@tracked-point`` (raw-valid, with a tracked-point truth t) and state the
+    raw σ to the filter. With e = (z_raw − t) / σ_raw the σ-normalised error of each reading:
+
+    ``raw-shuffled-in-frame``: each frame's e permuted among its features (keeps each frame's error distribution,
+    breaks what ties an error to its track and its place in the image); ``raw-shuffled-in-run``: e drawn from the
+    whole run's pool (also breaks what ties errors to a frame: turns, stops); ``raw-sign-flipped``: z_raw − t
+    with a random sign per reading (keeps each error's size where it is, removes every shared sign);
+    ``gauss@raw-sigma``: t + N(0, σ_raw) (SGBM's stated error model, exactly: no tails, no structure).
+    They use the truth, so they diagnose; none is a method. Not part of any monotonicity chain.
+    """
+    def parts(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        fr = log.frames[i]
+        z, s, t = fr.z_rect["raw"], fr.sigma_rect.get("raw"), log.truth[i]
+        if s is None:
+            raise ValueError("structure rungs need the raw map's σ (sigma_rect['raw'])")
+        ok = np.isfinite(z) & np.isfinite(t) & (log.truth_source[i] == 1) & np.isfinite(s) & (s > 0)
+        return ok, t, z, s
+
+    def out(ok: np.ndarray, zz: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        zz = np.where(ok, zz, np.nan)
+        return np.where(zz > 0, zz, np.nan), np.where(ok, s, np.nan)
+
+    def rng(log: TrackLog, i: int, k: int) -> np.random.Generator:
+        return np.random.default_rng([noise_seed, log.seed, log.frames[i].index, k])
+
+    def shuffled_in_frame(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        ok, t, z, s = parts(log, i)
+        e = (z - t) / s
+        idx = np.flatnonzero(ok)
+        e[idx] = e[rng(log, i, 1).permutation(idx)]
+        return out(ok, t + e * s, s)
+
+    pools: dict[int, np.ndarray] = {}
+
+    def shuffled_in_run(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        if log.seed not in pools:
+            es = []
+            for j in range(len(log.frames)):
+                okj, tj, zj, sj = parts(log, j)
+                es.append(((zj - tj) / sj)[okj])
+            pools[log.seed] = np.concatenate(es) if es else np.zeros(1)
+        ok, t, z, s = parts(log, i)
+        pool = pools[log.seed]
+        return out(ok, t + pool[rng(log, i, 2).integers(0, len(pool), len(z))] * s, s)
+
+    def sign_flipped(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        ok, t, z, s = parts(log, i)
+        sign = np.where(rng(log, i, 3).random(len(z)) < 0.5, -1.0, 1.0)
+        return out(ok, t + (z - t) * sign, s)
+
+    def gauss(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        ok, t, z, s = parts(log, i)
+        return out(ok, t + rng(log, i, 4).standard_normal(len(z)) * s, s)
+
+    return [Rung("raw-shuffled-in-frame", shuffled_in_frame), Rung("raw-shuffled-in-run", shuffled_in_run),
+            Rung("raw-sign-flipped", sign_flipped), Rung("gauss@raw-sigma", gauss)]
 
 
 def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,

@@ -123,3 +123,50 @@ def test_per_track_noise_rung_gives_each_track_one_error_in_every_frame():
     per_frame = np.stack([frame.depth(log, k)[0] / truth[k] for k in range(n)])
     assert np.ptp(per_frame, axis=0).min() > 1e-6
     np.testing.assert_allclose(track.depth(log, 0)[1], frame.depth(log, 0)[1])
+
+
+def test_structure_rungs_keep_the_raw_errors_but_break_their_structure():
+    """``structure_rungs``: the in-frame shuffle permutes each frame's σ-normalised raw errors among the same
+    features, the sign flip keeps every error's size at its feature, the Gaussian rung has no raw error in it;
+    features without a raw depth or a tracked-point truth get no depth, and every rung states the raw σ."""
+    from pipeline.depth_oracle import structure_rungs
+
+    n, k = 4, 40
+    ids = np.arange(k, dtype=np.int64)
+    rng = np.random.default_rng(5)
+    truth = [rng.uniform(2.0, 9.0, k) for _ in range(n)]
+    frames = []
+    for j in range(n):
+        fr = TrackedFrame(0.1 * j, j, ids, np.zeros((k, 2)), np.full(k, j + 1, np.int32), np.zeros((k, 2)))
+        sigma = 0.013 * truth[j] ** 2
+        z = truth[j] + sigma * np.linspace(-2.0, 3.0, k)                  # known normalised errors
+        z[0] = np.nan                                                    # a hole: no depth in any rung
+        fr.z_rect["raw"], fr.sigma_rect["raw"] = z, sigma
+        frames.append(fr)
+    source = [np.ones(k, np.uint8) for _ in range(n)]
+    source[1][1] = 0                                                     # no tracked-point truth
+    log = TrackLog(frames, np.zeros((0, 7)), seed=2, truth=truth, truth_source=source)
+    rungs = {r.name: r for r in structure_rungs()}
+    assert all(r.chain == "" for r in rungs.values())
+    for j in range(n):
+        raw, s_raw, t = frames[j].z_rect["raw"], frames[j].sigma_rect["raw"], truth[j]
+        ok = np.isfinite(raw) & (source[j] == 1)
+        e_raw = np.sort(((raw - t) / s_raw)[ok])
+        for name, rung in rungs.items():
+            z, s = rung.depth(log, j)
+            assert np.array_equal(np.isfinite(z), ok), name
+            np.testing.assert_allclose(s[ok], s_raw[ok])
+        z, _ = rungs["raw-shuffled-in-frame"].depth(log, j)
+        e = (z[ok] - t[ok]) / s_raw[ok]
+        np.testing.assert_allclose(np.sort(e), e_raw, atol=1e-9)          # the same errors …
+        assert not np.allclose(e, ((raw - t) / s_raw)[ok])               # … on other features
+        z, _ = rungs["raw-sign-flipped"].depth(log, j)
+        np.testing.assert_allclose(np.abs(z - t)[ok], np.abs(raw - t)[ok], rtol=1e-9)
+        z, _ = rungs["gauss@raw-sigma"].depth(log, j)
+        e = (z[ok] - t[ok]) / s_raw[ok]
+        assert abs(np.mean(e)) < 0.6 and 0.5 < np.std(e) < 1.6 and not np.allclose(np.sort(e), e_raw)
+    # the in-run shuffle draws from all frames' errors
+    z, _ = rungs["raw-shuffled-in-run"].depth(log, 2)
+    ok = np.isfinite(frames[2].z_rect["raw"]) & (source[2] == 1)
+    e = (z[ok] - truth[2][ok]) / frames[2].sigma_rect["raw"][ok]
+    assert np.all((e > -2.0 - 1e-9) & (e < 3.0 + 1e-9))
