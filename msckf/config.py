@@ -67,6 +67,7 @@ FLAT_KEYS: dict[str, str] = {
     "max_update_rows": "update",
     "update_method": "update",
     "depth_fallback": "update",
+    "depth_fallback_measured": "update",
     "observability_constrained": "propagation",
     "propagate_to_image_time": "propagation",
     "depth_seed": "depth",

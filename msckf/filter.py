@@ -531,9 +531,12 @@ class MsckfFilter:
 
     def _fallback_drop(self, rr: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """The depth-map observations (features ``rr`` × clone ``slots``, broadcast) that ``depth_fallback`` drops:
-        the filled ones (``FeatureStore.depth_filled``)."""
+        the filled ones (``FeatureStore.depth_filled``), or all of them with ``update.depth_fallback_measured``."""
         fs = self.features
-        return (fs.src[rr, slots] == DepthSource.DEPTH_MAP) & fs.depth_filled[rr, slots]
+        from_map = fs.src[rr, slots] == DepthSource.DEPTH_MAP
+        if self.config.update.depth_fallback_measured:
+            return from_map
+        return from_map & fs.depth_filled[rr, slots]
 
     def _regate_without_depth(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, ok: np.ndarray,
                               spec: MeasurementSpec, accepted: list[FeatureBatch], acc_rows_count: list[np.ndarray],

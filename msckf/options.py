@@ -232,6 +232,10 @@ class UpdateOptions:
             0.161 → 0.151 m and Telea 0.168 → 0.119 m against depth-raw 0.112 m; 10 s 02 / 03 ``paper`` 0.0183 →
             0.0184 / 0.0330 → 0.0296 m; depth-raw and stereo unchanged: no filled depths); False rejects the whole
             feature. No effect on the ``stereo`` front end (no depth-map observations).
+        depth_fallback_measured: with ``depth_fallback``, measured (raw SGBM) depths are dropped on a re-gate too:
+            a feature rejected with its depth-map observations is gated again from its pixels alone, whether its
+            depths were filled or measured (a depth reading is its own measurement and may be the outlier; its
+            failure need not cost the pixel track). False (default): measured depths are never dropped.
     """
 
     feature_noise: float = 0.007
@@ -244,6 +248,7 @@ class UpdateOptions:
     max_update_rows: int = 0
     update_method: str = "qr"
     depth_fallback: bool = True
+    depth_fallback_measured: bool = False
 
     def __post_init__(self) -> None:
         _check(self, positive=("feature_noise",),

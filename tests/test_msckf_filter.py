@@ -245,3 +245,27 @@ def test_depth_fallback_leaves_measured_depths_alone():
         outs = [np.r_[p.p_world, p.cov_diag] for _, p in iterate(w, flt) if p is not None]
         poses[fallback] = np.array(outs)
     assert np.array_equal(poses[False], poses[True])
+
+
+def test_depth_fallback_measured_also_drops_measured_depths_on_a_retry():
+    """With ``depth_fallback_measured`` a feature whose *measured* depth is 60 % off is gated again from its
+    pixels alone, as a filled one is: rejected features come back, and the estimate is not worse."""
+    from dataclasses import replace
+    w = _with_biased_depth(make_world(seed=5, duration=5.0, max_features=150, depth_mode=True,
+                                      depth_rel_sigma=0.01), every=4, factor=1.6)
+    w = replace(w, frames=[replace(f, depth_measured=np.isfinite(f.depth_m)) for f in w.frames])
+    res = {}
+    for measured in (False, True):
+        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=True,
+                             depth_fallback_measured=measured)
+        flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        n_out = n_fb = 0
+        for _ in iterate(w, flt):
+            n_out += flt.last_stats.n_gated_out
+            n_fb += flt.last_stats.n_depth_fallback
+        res[measured] = (n_out, n_fb, float(np.linalg.norm(flt.state.p - w.p_w[-1])))
+    (out0, fb0, err0), (out1, fb1, err1) = res[False], res[True]
+    assert fb0 == 0 and out0 > 50                       # measured depths: no retry without the option
+    assert fb1 > 0.4 * out0 and out1 < 0.6 * out0, res  # with it, the pixels of half of them come back
+    assert err1 < 0.15 and err1 <= err0 * 1.05, res
