@@ -81,6 +81,13 @@ def _bool(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=bool)
 
 
+def _same_shape(*maps: np.ndarray) -> None:
+    """The compiled kernels index every map with the first one's shape: refuse maps of different shapes."""
+    shapes = {np.shape(m) for m in maps}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"depth σ: maps must be 2-D and of one shape, got {sorted(shapes)}")
+
+
 def fill_distance_px(raw_valid: np.ndarray) -> np.ndarray:
     """(H, W) float32 Euclidean distance (px) of every pixel to the nearest raw-valid pixel (0 on valid ones)."""
     if raw_valid.all():
@@ -119,6 +126,7 @@ class DepthSigmaModel:
 
     def raw_sigma(self, depth_m: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """(H, W) float32 σ_Z in metres of a raw SGBM map (NaN where not valid)."""
+        _same_shape(depth_m, valid)
         return raw_sigma_map(_f32(depth_m), _bool(valid), self._k_raw)
 
     def filled_sigma(self, depth_m: np.ndarray, raw_valid: np.ndarray, method: str,
@@ -133,6 +141,7 @@ class DepthSigmaModel:
         use_dist = per_px != 0
         dist = fill_distance_px(raw_valid) if use_dist else np.zeros((1, 1), np.float32)
         keep = np.ones(raw_valid.shape, bool) if keep is None else _bool(keep)
+        _same_shape(depth_m, raw_valid, keep)
         return filled_sigma_map(_f32(depth_m), raw_valid, keep, dist, use_dist, np.float32(rel0),
                                 np.float32(per_px), np.float32(rel_max), self._k_raw)
 

@@ -76,6 +76,10 @@ def test_compiled_sigma_maps_equal_the_numpy_expressions_bit_for_bit(per_px):
     keep = rng.random(depth.shape) < 0.5
     assert np.array_equal(model.filled_sigma(depth, raw_valid, "m", keep=keep),
                           np.where(keep, want_filled, np.nan), equal_nan=True)
+    with pytest.raises(ValueError, match="one shape"):                # never index past a smaller map
+        model.filled_sigma(depth, raw_valid[:-1], "m")
+    with pytest.raises(ValueError, match="one shape"):
+        model.raw_sigma(depth, raw_valid[:, :-1])
 
 
 def test_fills_open_to_the_far_field_carry_no_depth():
