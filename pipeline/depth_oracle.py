@@ -373,7 +373,10 @@ def structure_rungs(noise_seed: int = 0) -> list[Rung]:
     whole run's pool (also breaks what ties errors to a frame: turns, stops); ``raw-sign-flipped``: z_raw − t
     with a random sign per reading (keeps each error's size where it is, removes every shared sign);
     ``gauss@raw-sigma``: t + N(0, σ_raw) (SGBM's stated error model, exactly: no tails, no structure).
-    They use the truth, so they diagnose; none is a method. Not part of any monotonicity chain.
+    They use the truth, so they diagnose; none is a method. Not part of any monotonicity chain. Like
+    ``depth-raw@tracked-point`` (their reference), they do not say which readings are measured, so the filter's
+    ``depth_fallback`` may re-gate a rejected feature without them (``depth-raw`` itself marks its readings
+    measured: never re-gated).
     """
     def parts(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         fr = log.frames[i]
