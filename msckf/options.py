@@ -198,8 +198,9 @@ class UpdateOptions:
             the depth front end keeps 0 (its gate stays loose: γ/dof ≈ 0.01). Re-measured after stop 31's γ fix
             (pipeline runs, 120 s, 5 seeds, 0.0005): rosario-like-01 depth-raw 0.833 → 0.255 m and ``paper``
             0.647 → 0.242 m (better on every seed), but rosario-like-02 depth-raw 0.199 → 0.294 m and ``paper``
-            0.135 → 0.375 / 28.7 / 0.527 / 0.195 / 0.142 m; with ``depth_fallback_measured`` 03 ``paper``
-            diverges on 4 of 5 seeds: still not a default (README, stop 33).
+            0.135 → 0.375 / 28.7 / 0.527 / 0.195 / 0.142 m, and on rosario-like-03 3 of 5 depth-raw and 5 of 5
+            ``paper`` runs diverge (4 of 5 ``paper`` with ``depth_fallback_measured``): still not a default
+            (README, stop 33).
         stereo_gate_noise: ``gate_noise`` of the ``stereo`` front end (``msckf.vio.filter_config``), 0 =
             ``gate_noise``. Default 0.0005 ≈ 0.18 px (γ/dof median 0.56 / 0.64 on the 10 s presets 02 / 03, 0.66
             at 120 s on 02, against 0.010 with the update's σ): ATE 0.0102 → 0.0098 / 0.0225 → 0.0132 m (10 s
