@@ -207,22 +207,26 @@ def _with_biased_depth(w, every: int, factor: float):
     return replace(w, frames=frames)
 
 
+def _gate_counts_and_error(w, **overrides) -> tuple[int, int, float]:
+    """Run the filter over world ``w`` with a tight depth σ (plus ``overrides``): (features gated out, features
+    accepted by the depth fallback, final position error in m)."""
+    cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, **overrides)
+    flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+    flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+    n_out = n_fb = 0
+    for _ in iterate(w, flt):
+        n_out += flt.last_stats.n_gated_out
+        n_fb += flt.last_stats.n_depth_fallback
+    return n_out, n_fb, float(np.linalg.norm(flt.state.p - w.p_w[-1]))
+
+
 def test_depth_fallback_keeps_the_pixels_of_a_feature_whose_depth_fails_the_gate():
     """A track whose (filled) depth is 60 % off fails the gate as a whole; with ``depth_fallback`` its cam0
     pixels are gated again alone and used, so fewer features are lost and the estimate does not get worse
     (measured: 136 rejected → 66 rejected + 71 back; final error 0.101 → 0.102 m after ≈ 5 m)."""
     w = _with_biased_depth(make_world(seed=5, duration=5.0, max_features=150, depth_mode=True,
                                       depth_rel_sigma=0.01), every=4, factor=1.6)
-    res = {}
-    for fallback in (False, True):
-        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=fallback)
-        flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
-        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
-        n_out = n_fb = 0
-        for _ in iterate(w, flt):
-            n_out += flt.last_stats.n_gated_out
-            n_fb += flt.last_stats.n_depth_fallback
-        res[fallback] = (n_out, n_fb, float(np.linalg.norm(flt.state.p - w.p_w[-1])))
+    res = {fallback: _gate_counts_and_error(w, depth_fallback=fallback) for fallback in (False, True)}
     (out0, fb0, err0), (out1, fb1, err1) = res[False], res[True]
     assert fb0 == 0 and out0 > 50                       # the biased tracks are rejected without the fallback
     assert fb1 > 0.4 * out0 and out1 < 0.6 * out0       # … and half of them come back without their depth
@@ -254,17 +258,8 @@ def test_depth_fallback_measured_also_drops_measured_depths_on_a_retry():
     w = _with_biased_depth(make_world(seed=5, duration=5.0, max_features=150, depth_mode=True,
                                       depth_rel_sigma=0.01), every=4, factor=1.6)
     w = replace(w, frames=[replace(f, depth_measured=np.isfinite(f.depth_m)) for f in w.frames])
-    res = {}
-    for measured in (False, True):
-        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=True,
-                             depth_fallback_measured=measured)
-        flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
-        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
-        n_out = n_fb = 0
-        for _ in iterate(w, flt):
-            n_out += flt.last_stats.n_gated_out
-            n_fb += flt.last_stats.n_depth_fallback
-        res[measured] = (n_out, n_fb, float(np.linalg.norm(flt.state.p - w.p_w[-1])))
+    res = {measured: _gate_counts_and_error(w, depth_fallback=True, depth_fallback_measured=measured)
+           for measured in (False, True)}
     (out0, fb0, err0), (out1, fb1, err1) = res[False], res[True]
     assert fb0 == 0 and out0 > 50                       # measured depths: no retry without the option
     assert fb1 > 0.4 * out0 and out1 < 0.6 * out0, res  # with it, the pixels of half of them come back
