@@ -68,6 +68,7 @@ FLAT_KEYS: dict[str, str] = {
     "update_method": "update",
     "depth_fallback": "update",
     "depth_fallback_measured": "update",
+    "gate_depth_scale": "update",
     "observability_constrained": "propagation",
     "propagate_to_image_time": "propagation",
     "depth_seed": "depth",

@@ -40,7 +40,7 @@ from msckf.update import (
     measurement_blocks,
     qr_update,
     schur_information,
-    whiten_depth_track,
+    whiten_depth_shared,
     whiten_track_drift,
 )
 
@@ -450,6 +450,13 @@ class MsckfFilter:
         ``FeatureStore.depth_filled``) enter with their cam0 pixel only (no virtual cam1, no inverse-depth row),
         as if they were monocular.
         """
+        return self._batches(rows, clone_mask, spec, without_depth)[0]
+
+    def _batches(self, rows: np.ndarray, clone_mask: np.ndarray, spec: MeasurementSpec,
+                 without_depth: bool = False) -> tuple[FeatureBatch, FeatureBatch]:
+        """The blocks of :meth:`_batch` for the update and the same blocks as the χ² gate sees them: with
+        ``update.gate_depth_scale`` s > 0 the gate's depth rows also carry one error shared by all readings of a
+        feature, σ = s·Z (``whiten_depth_shared``); otherwise both are the same object."""
         fs, cl = self.features, self.clones
         order = self._order()
         cols, valid = self._compact(clone_mask)
@@ -463,11 +470,24 @@ class MsckfFilter:
             obs = obs.copy()
             obs[..., 2:4] = np.where(drop[..., None], np.nan, obs[..., 2:4])
             depth = np.where(drop, np.nan, depth)
-        b = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
-                               cl.p_null[slots], obs, depth, use_depth_row, valid,
-                               cols, len(order), depth_sigma=fs.depth_sigma[rr, slots])
-        b = whiten_depth_track(b, self.config.depth.depth_track_bias)
-        return whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
+        depth_sigma = fs.depth_sigma[rr, slots]
+        raw = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
+                                 cl.p_null[slots], obs, depth, use_depth_row, valid,
+                                 cols, len(order), depth_sigma=depth_sigma)
+        beta = self.config.depth.depth_track_bias
+        track = np.full(slots.shape, np.sqrt(beta)) if beta > 0.0 else np.zeros(slots.shape)
+        b = whiten_depth_shared(raw, track)
+        b = whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
+        s = self.config.update.gate_depth_scale
+        if s <= 0.0 or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
+            return b, b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # σ of the shared part in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
+            sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
+            scale = np.where(np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0), s / (depth * sig_rho), 0.0)
+        g = whiten_depth_shared(raw, np.stack([track, scale], axis=-1))
+        return b, whiten_track_drift(g, cl.times[slots], valid, spec.feature_noise,
+                                     self.config.update.track_drift_psd)
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""
@@ -481,8 +501,8 @@ class MsckfFilter:
         accepted: list[FeatureBatch] = []
         acc_rows_count: list[np.ndarray] = []
         for grp in bucket_by_length(n_obs):
-            b = self._batch(rows[grp], clone_mask[grp], spec)
-            gamma = gating_chi2(self.P, b, sigma, c.gate_noise or None)
+            b, b_gate = self._batches(rows[grp], clone_mask[grp], spec)
+            gamma = gating_chi2(self.P, b_gate, sigma, c.gate_noise or None)
             dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[grp]
             ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
             st.gate_gamma.append(gamma)
@@ -558,8 +578,8 @@ class MsckfFilter:
         retry = retry[self._triangulate(rows[retry], FrameStats(), without_depth=True)]
         if len(retry) == 0:
             return 0
-        b = self._batch(rows[retry], clone_mask[retry], spec, without_depth=True)
-        gamma = gating_chi2(self.P, b, c.feature_noise, c.gate_noise or None)
+        b, b_gate = self._batches(rows[retry], clone_mask[retry], spec, without_depth=True)
+        gamma = gating_chi2(self.P, b_gate, c.feature_noise, c.gate_noise or None)
         dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[retry]
         ok2 = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
         if np.any(ok2):

@@ -42,7 +42,8 @@ from msckf.rotation import rotation_angle, so3_exp
 from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2",
-           "chi2_threshold", "schur_information", "whiten_track_drift", "whiten_depth_track", "downweight_features",
+           "chi2_threshold", "schur_information", "whiten_track_drift", "whiten_depth_track", "whiten_depth_shared",
+           "downweight_features",
            "ekf_update_information",
            "null_space_project", "null_space_project_active", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
@@ -362,10 +363,9 @@ def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
     at a tracked point has an error that is largely the same in every frame (a per-track disparity bias, or the
     same wrong fill), so each reading's error is modelled as its own white part plus a part b shared by all
     readings of the track with var(b) = β × the reading's variance: ``C = I + β 11ᵀ`` over the feature's valid
-    depth rows. The rows are multiplied by ``L⁻¹`` (``L Lᵀ = C``) so that the update and the χ² gate keep
-    R = σ² I. n rows then carry the information of ``n / (1 + nβ)`` readings (at most 1/β); the differences
-    between readings keep their own σ (the model never makes them more precise than one reading).
-    β = 0 returns ``batch``.
+    depth rows (:func:`whiten_depth_shared` with ``a = √β``). n rows then carry the information of
+    ``n / (1 + nβ)`` readings (at most 1/β); the differences between readings keep their own σ (the model never
+    makes them more precise than one reading). β = 0 returns ``batch``.
 
     Args:
         batch: blocks with 5 rows per observation (``depth_row``); other batches are returned unchanged.
@@ -373,12 +373,31 @@ def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
     """
     if bias_ratio <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
         return batch
-    ok = batch.rows[:, :, 4]                                                          # (k, n)
-    if not ok.any():
+    return whiten_depth_shared(batch, np.where(batch.rows[:, :, 4], np.sqrt(bias_ratio), 0.0))
+
+
+def whiten_depth_shared(batch: FeatureBatch, shared: np.ndarray) -> FeatureBatch:
+    """Whiten the inverse-depth rows (row 4) of each feature for one error term shared by all of its readings.
+
+    The depth rows arrive whitened to the feature σ (unit variance each). Reading i of a feature gets extra
+    errors ``Σ_m A_im · b_m`` with independent b_m ~ N(0, 1) per feature, so the rows' covariance is
+    ``C = I + A Aᵀ`` (in units of σ²); the rows are multiplied by ``L⁻¹`` (``L Lᵀ = C``) so that the update and
+    the χ² gate keep R = σ² I.
+
+    Args:
+        batch: blocks with 5 rows per observation (``depth_row``); other batches are returned unchanged.
+        shared: (k, n) or (k, n, m): A_im ≥ 0 in units of each reading's own σ, one column per shared term;
+            ignored (treated as 0) where row 4 is not valid.
+    """
+    if batch.r.size == 0 or batch.r.shape[2] < 5:
+        return batch
+    ok = batch.rows[:, :, 4]
+    A = np.asarray(shared, dtype=np.float64)
+    A = np.where(ok[..., None], A[..., None] if A.ndim == 2 else A, 0.0)               # (k, n, m)
+    if not np.any(A > 0.0):
         return batch
     n = ok.shape[1]
-    C = np.where(ok[:, :, None] & ok[:, None, :], bias_ratio, 0.0) + np.eye(n)
-    L = np.linalg.cholesky(C)
+    L = np.linalg.cholesky(A @ np.swapaxes(A, 1, 2) + np.eye(n))
     r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
     r[:, :, 4] = np.linalg.solve(L, batch.r[:, :, 4][..., None])[..., 0]
     Hx[:, :, 4] = np.linalg.solve(L, batch.Hx[:, :, 4])

@@ -6,7 +6,8 @@ purpose (it enters the key): ``depth_track_bias`` (issue 17) moved them from 1c8
 ``depth_fallback`` (issue 17) from 8a3ac494bea3776b / 3573a898843efcdc, its default turned on (stop 25) from
 b0361905f190c692 / 5d6195b13573cdac, ``gate_noise`` (issue 17, stop 26) from d0fd4320c2ff2890 /
 167539a90d36ccf4, ``stereo_gate_noise`` (on by default, stop 26) from 0f0ab2d474ac9d7e / 1878cb1caddbe816, and
-``depth_fallback_measured`` (issue 17, stop 33) from 77057be89b7ed8cc / 20b8d5e46530d155.
+``depth_fallback_measured`` (issue 17, stop 33) from 77057be89b7ed8cc / 20b8d5e46530d155, and
+``gate_depth_scale`` (issue 17, stop 34) from ee50e97f37739dc3 / e06ed8280159a524.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "ee50e97f37739dc3"
+DEFAULT_MSCKF_HASH = "d3fa1b5a259bbd9e"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "e06ed8280159a524"
+DEFAULT_JOB_KEY = "60409072592004ca"
 
 
 def _job_key(msckf: dict) -> str:

@@ -264,3 +264,27 @@ def test_depth_fallback_measured_also_drops_measured_depths_on_a_retry():
     assert fb0 == 0 and out0 > 50                       # measured depths: no retry without the option
     assert fb1 > 0.4 * out0 and out1 < 0.6 * out0, res  # with it, the pixels of half of them come back
     assert err1 < 0.15 and err1 <= err0 * 1.05, res
+
+
+def test_whiten_depth_shared_with_two_terms_gives_the_nominal_chi2():
+    """Depth rows whose errors are white + a per-feature constant (√β each) + a per-feature scale term a_i (its
+    own size per reading): whitened with both terms their χ² has the nominal mean; one term alone leaves it
+    inflated; a zero term changes nothing."""
+    from msckf.update import FeatureBatch, whiten_depth_shared
+
+    rng = np.random.default_rng(5)
+    k, n, beta = 3000, 6, 0.5
+    rows = np.zeros((k, n, 5), bool)
+    rows[:, :, 4] = True
+    a = rng.uniform(0.5, 3.0, size=(k, n))
+    err = rng.normal(size=(k, n)) + np.sqrt(beta) * rng.normal(size=(k, 1)) + a * rng.normal(size=(k, 1))
+    r = np.zeros((k, n, 5))
+    r[:, :, 4] = err
+    b = FeatureBatch(np.zeros((k, n), np.int64), np.zeros((k, n, 5, 6)), np.zeros((k, n, 5, 3)), r, rows)
+    both = whiten_depth_shared(b, np.stack([np.full((k, n), np.sqrt(beta)), a], axis=-1))
+    only_track = whiten_depth_shared(b, np.full((k, n), np.sqrt(beta)))
+    chi2 = {name: np.sum(x.r[:, :, 4] ** 2, axis=1).mean() / n for name, x in
+            (("both", both), ("track", only_track))}
+    assert 0.93 < chi2["both"] < 1.07, chi2
+    assert chi2["track"] > 2.0, chi2
+    assert whiten_depth_shared(b, np.zeros((k, n))) is b

@@ -436,3 +436,50 @@ def test_gate_statistic_stays_large_for_a_feature_with_a_huge_jacobian():
     Xr, Xf = np.linalg.solve(S, r), np.linalg.solve(S, Hf)
     b_ = Hf.T @ Xr
     assert r @ Xr - b_ @ np.linalg.solve(Hf.T @ Xf, b_) < 0
+
+
+def test_gate_depth_scale_tolerates_one_scale_error_shared_by_a_features_depths():
+    """A filter's live features with every depth reading scaled by 1.15 (what the gate sees when the filter's own
+    scale is 15 % off): with a tight pixel σ in the gate and a 1 % depth σ, ≥ 9 % of them fail; with
+    ``gate_depth_scale`` 0.1 (one relative error shared by a feature's readings, gate only) ≤ 2 % do, as with
+    unbiased depths; the update's blocks are the same with and without the option."""
+    import copy
+    from dataclasses import replace
+
+    from msckf.filter import FrameStats
+    from msckf.update import chi2_threshold, gating_chi2
+
+    w = make_world(seed=3, duration=3.0, max_features=300, depth_mode=True, depth_rel_sigma=0.01)
+    sig = 1.0 / 351.06
+    cfg = load_config(dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                           feature_noise=sig, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_rel_sigma=0.01,
+                           depth_inv_sigma=1e-3))
+    flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+    flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+    for _ in iterate(w, flt, stop_after=60):
+        pass
+    fs = flt.features
+    order = np.asarray(flt.clones.order)
+    rows = fs.alive_rows()
+    rows = rows[fs.has[rows][:, order].sum(axis=1) >= 3]
+    flt._triangulate(rows[~fs.initialized[rows]], FrameStats())
+    rows = rows[fs.initialized[rows]]
+    assert len(rows) > 100
+    mask = fs.has[rows][:, order]
+    spec = flt._measurement_spec()
+    rejected, blocks = {}, {}
+    for factor in (1.0, 1.15):
+        g = copy.deepcopy(flt)
+        g.features.depth[rows] *= factor
+        for s in (0.0, 0.1):
+            g.config = replace(g.config, update=replace(g.config.update, gate_depth_scale=s))
+            b, b_gate = g._batches(rows, mask, spec)
+            assert (b_gate is b) == (s == 0.0)
+            gamma = gating_chi2(g.P, b_gate, sig, sig)
+            rejected[factor, s] = float(np.mean(gamma >= chi2_threshold(0.95, b_gate.n_rows - 3)))
+            blocks[factor, s] = b
+    assert rejected[1.15, 0.0] >= 0.09, rejected
+    assert rejected[1.15, 0.1] <= 0.02 and rejected[1.0, 0.1] <= 0.02, rejected
+    for factor in (1.0, 1.15):
+        assert np.array_equal(blocks[factor, 0.0].r, blocks[factor, 0.1].r)
+        assert np.array_equal(blocks[factor, 0.0].Hx, blocks[factor, 0.1].Hx)
