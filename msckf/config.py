@@ -78,6 +78,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_gate_sigma": "depth",
     "depth_motion_rel_sigma": "depth",
     "depth_track_bias": "depth",
+    "depth_keep_mono": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

@@ -247,6 +247,11 @@ class MsckfFilter:
             raise MsckfInputError(f"image at t={stamp:.6f} s: non-finite cam0 coordinates")
         if len(np.unique(ids)) != len(ids):
             raise MsckfInputError(f"image at t={stamp:.6f} s: duplicate feature ids")
+        if not self.config.depth.depth_keep_mono and len(ids):
+            keep = np.asarray(obs.source) != DepthSource.MONO
+            if not keep.all():
+                obs = obs.subset(keep)
+                ids = ids[keep]
         if self.state is None or stamp < self.state.time:
             return None
         st = FrameStats(stamp_s=stamp, n_observations=len(ids))

@@ -66,6 +66,15 @@ class FeatureObservations:
     def __len__(self) -> int:
         return len(self.ids)
 
+    def subset(self, keep: np.ndarray) -> FeatureObservations:
+        """The observations where ``keep`` ((N,) bool) is True, every per-feature array cut alike."""
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else np.asarray(a)[keep]
+        return FeatureObservations(self.stamp_s, np.asarray(self.ids)[keep], np.asarray(self.cam0_xy)[keep],
+                                   np.asarray(self.cam1_xy)[keep], np.asarray(self.depth_m)[keep],
+                                   np.asarray(self.source)[keep], np.asarray(self.track_length)[keep],
+                                   cut(self.depth_sigma_m), cut(self.depth_measured))
+
 
 @dataclass(frozen=True)
 class PoseEstimate:

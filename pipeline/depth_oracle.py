@@ -25,7 +25,7 @@ coordinate with :func:`msckf.frontend_depth.depth_to_stereo`, as the front end d
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -259,6 +259,8 @@ class Rung:
     ``order``: the rung's depth-error rank within its chain (lower = more accurate), for the monotonicity check.
     ``measured``: ``(log, frame_index) -> (N,) bool`` True where the rung's depth is a direct (raw SGBM)
     measurement, as the pipeline tells the filter (``FeatureObservations.depth_measured``); None: unknown.
+    ``keep_mono``: the features without depth enter the filter as monocular observations (``depth_keep_mono``)
+    whatever the configuration says (the ``mono`` rung: a monocular VIO on the same tracks); False: as configured.
     """
 
     name: str
@@ -266,6 +268,7 @@ class Rung:
     chain: str = ""
     order: int = 0
     measured: Callable[[TrackLog, int], np.ndarray] | None = None
+    keep_mono: bool = False
 
 
 def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
@@ -354,7 +357,7 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     for k, lv in enumerate(noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
     # no depth at all: the σ → ∞ end of the noise chain (a depth stated with its true σ must not hurt)
-    rungs.append(Rung("mono", no_depth, "noise", len(noise_levels) + 1))
+    rungs.append(Rung("mono", no_depth, "noise", len(noise_levels) + 1, keep_mono=True))
     for k, lv in enumerate(track_noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:
@@ -432,6 +435,8 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
 
     Returns (IMU trajectory, divergence reason or None, per-run statistics: depth coverage, gate counts).
     """
+    if rung.keep_mono and not config.depth.depth_keep_mono:
+        config = replace(config, depth=replace(config.depth, depth_keep_mono=True))
     filt = MsckfFilter(config, rig.T_left_imu, rig.T_right_left)
     stamps: list[float] = []
     ps: list[np.ndarray] = []

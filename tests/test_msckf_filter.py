@@ -161,7 +161,8 @@ def test_same_inputs_give_bit_identical_outputs():
 def test_monocular_and_depth_observations_track(variant):
     kw = dict(mono_fraction=1.0) if variant == "mono" else dict(depth_mode=True, depth_rel_sigma=0.01)
     w = make_world(seed=12, duration=6.0, max_features=150, **kw)
-    cfg = matched_config(depth_row=variant == "depth_row", depth_rel_sigma=0.01, depth_inv_sigma=1e-3)
+    cfg = matched_config(depth_row=variant == "depth_row", depth_rel_sigma=0.01, depth_inv_sigma=1e-3,
+                         depth_keep_mono=variant == "mono")       # a monocular world needs its mono observations
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     for _ in iterate(w, flt):
@@ -288,3 +289,20 @@ def test_whiten_depth_shared_with_two_terms_gives_the_nominal_chi2():
     assert 0.93 < chi2["both"] < 1.07, chi2
     assert chi2["track"] > 2.0, chi2
     assert whiten_depth_shared(b, np.zeros((k, n))) is b
+
+
+def test_depth_keep_mono_false_ignores_monocular_observations_exactly():
+    """``depth_keep_mono: false``: a world with 40 % monocular observations gives bit-identical poses to the same
+    world with those observations removed before the filter (and different ones with them kept)."""
+    from dataclasses import replace
+    w = make_world(seed=2, duration=2.0, max_features=150, depth_mode=True, depth_rel_sigma=0.01,
+                   mono_fraction=0.4)
+    w_cut = replace(w, frames=[f.subset(f.source != DepthSource.MONO) for f in w.frames])
+    assert sum(len(f) for f in w_cut.frames) < 0.7 * sum(len(f) for f in w.frames)
+    runs = {}
+    for name, world, keep in (("ignored", w, False), ("removed", w_cut, True), ("kept", w, True)):
+        flt = MsckfFilter(matched_config(depth_keep_mono=keep), w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        runs[name] = np.array([np.r_[p.p_world, p.cov_diag] for _, p in iterate(world, flt) if p is not None])
+    assert np.array_equal(runs["ignored"], runs["removed"])
+    assert not np.array_equal(runs["ignored"], runs["kept"])
