@@ -479,10 +479,11 @@ class MsckfFilter:
         raw = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                  cl.p_null[slots], obs, depth, use_depth_row, valid,
                                  cols, len(order), depth_sigma=depth_sigma)
+        # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other
+        raw = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
         beta = self.config.depth.depth_track_bias
         track = np.full(slots.shape, np.sqrt(beta)) if beta > 0.0 else np.zeros(slots.shape)
         b = whiten_depth_shared(raw, track)
-        b = whiten_track_drift(b, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
         s = self.config.update.gate_depth_scale
         if s <= 0.0 or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
             return b, b
@@ -490,9 +491,7 @@ class MsckfFilter:
             # σ of the shared part in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
             sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
             scale = np.where(np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0), s / (depth * sig_rho), 0.0)
-        g = whiten_depth_shared(raw, np.stack([track, scale], axis=-1))
-        return b, whiten_track_drift(g, cl.times[slots], valid, spec.feature_noise,
-                                     self.config.update.track_drift_psd)
+        return b, whiten_depth_shared(raw, np.stack([track, scale], axis=-1))
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""
