@@ -481,8 +481,7 @@ class MsckfFilter:
                                  cols, len(order), depth_sigma=depth_sigma)
         # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other
         raw = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
-        beta = self.config.depth.depth_track_bias
-        track = np.full(slots.shape, np.sqrt(beta)) if beta > 0.0 else np.zeros(slots.shape)
+        track = np.full(slots.shape, np.sqrt(self.config.depth.depth_track_bias))   # 0 (default): no shared term
         b = whiten_depth_shared(raw, track)
         s = self.config.update.gate_depth_scale
         if s <= 0.0 or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():

@@ -371,9 +371,9 @@ def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
         batch: blocks with 5 rows per observation (``depth_row``); other batches are returned unchanged.
         bias_ratio: β ≥ 0 (dimensionless).
     """
-    if bias_ratio <= 0.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
+    if bias_ratio <= 0.0:
         return batch
-    return whiten_depth_shared(batch, np.where(batch.rows[:, :, 4], np.sqrt(bias_ratio), 0.0))
+    return whiten_depth_shared(batch, np.full(batch.rows.shape[:2], np.sqrt(bias_ratio)))
 
 
 def whiten_depth_shared(batch: FeatureBatch, shared: np.ndarray) -> FeatureBatch:

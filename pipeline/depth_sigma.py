@@ -138,10 +138,10 @@ class DepthSigmaModel:
         """
         rel0, per_px, rel_max = self.fill.get(method) or self.fill.get("default") or FILL_CALIBRATION["default"]
         raw_valid = _bool(raw_valid)
-        use_dist = per_px != 0
-        dist = fill_distance_px(raw_valid) if use_dist else np.zeros((1, 1), np.float32)
         keep = np.ones(raw_valid.shape, bool) if keep is None else _bool(keep)
         _same_shape(depth_m, raw_valid, keep)
+        use_dist = per_px != 0
+        dist = fill_distance_px(raw_valid) if use_dist else np.zeros((1, 1), np.float32)
         return filled_sigma_map(_f32(depth_m), raw_valid, keep, dist, use_dist, np.float32(rel0),
                                 np.float32(per_px), np.float32(rel_max), self._k_raw)
 

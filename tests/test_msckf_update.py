@@ -93,29 +93,39 @@ def test_oc_projection_annihilates_the_unobservable_direction():
         assert np.allclose(b.Hf[0, j], -b.Hx[0, j][:, 3:6])
 
 
+#: The simulated world's noise as the filter is told it (normalised pixel σ = 1 px at fx 351.06).
+_WORLD_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
+                    feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4)
+
+
+def _triangulated_live_rows(flt: MsckfFilter) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The filter's live features seen by ≥ 3 clones, triangulated where not yet: (rows that are initialised,
+    clone order, triangulation success of those that needed it)."""
+    from msckf.filter import FrameStats
+
+    fs = flt.features
+    rows = fs.alive_rows()
+    order = np.asarray(flt.clones.order)
+    rows = rows[fs.has[rows][:, order].sum(axis=1) >= 3]
+    ok = flt._triangulate(rows[~fs.initialized[rows]], FrameStats())
+    return rows[fs.initialized[rows]], order, ok
+
+
 @pytest.fixture(scope="module", params=["stereo", "depth"])
 def running_filter(request):
     """A filter after 40 frames of the simulated world (stereo matches or depth-map observations), with its
     live features triangulated."""
     w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=request.param == "depth",
                    depth_rel_sigma=0.02)
-    cfg = load_config(dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                           feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_row=False))
+    cfg = load_config(dict(_WORLD_NOISE, depth_row=False))
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81,
                    covariance=np.diag(np.r_[[1e-4] * 3, [1e-6] * 3, [1e-2] * 3, [1e-4] * 3, [1e-4] * 3,
                                             [1e-5] * 3, [1e-5] * 3]))
     for _ in iterate(w, flt, stop_after=40):
         pass
-    fs = flt.features
-    rows = fs.alive_rows()
-    order = np.asarray(flt.clones.order)
-    rows = rows[fs.has[rows][:, order].sum(axis=1) >= 3]
-    from msckf.filter import FrameStats
-    need = rows[~fs.initialized[rows]]
-    ok = flt._triangulate(need, FrameStats())
-    assert len(need) == 0 or ok.mean() > 0.9
-    rows = rows[fs.initialized[rows]]
+    rows, order, ok = _triangulated_live_rows(flt)
+    assert len(ok) == 0 or ok.mean() > 0.9
     return flt, rows, order
 
 
@@ -446,24 +456,17 @@ def test_gate_depth_scale_tolerates_one_scale_error_shared_by_a_features_depths(
     import copy
     from dataclasses import replace
 
-    from msckf.filter import FrameStats
     from msckf.update import chi2_threshold, gating_chi2
 
     w = make_world(seed=3, duration=3.0, max_features=300, depth_mode=True, depth_rel_sigma=0.01)
-    sig = 1.0 / 351.06
-    cfg = load_config(dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                           feature_noise=sig, gyro_bias_cov=1e-6, acc_bias_cov=1e-4, depth_rel_sigma=0.01,
-                           depth_inv_sigma=1e-3))
+    sig = _WORLD_NOISE["feature_noise"]
+    cfg = load_config(dict(_WORLD_NOISE, depth_rel_sigma=0.01, depth_inv_sigma=1e-3))
     flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
     flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
     for _ in iterate(w, flt, stop_after=60):
         pass
+    rows, order, _ = _triangulated_live_rows(flt)
     fs = flt.features
-    order = np.asarray(flt.clones.order)
-    rows = fs.alive_rows()
-    rows = rows[fs.has[rows][:, order].sum(axis=1) >= 3]
-    flt._triangulate(rows[~fs.initialized[rows]], FrameStats())
-    rows = rows[fs.initialized[rows]]
     assert len(rows) > 100
     mask = fs.has[rows][:, order]
     spec = flt._measurement_spec()
