@@ -188,22 +188,20 @@ class UpdateOptions:
             re-tune both; this port re-tunes both). On the simulated feature world (benchmarks/bench_msckf.py) an
             under-stated σ costs far more than an over-stated one (the gate then rejects good features).
         gate_noise: σ of a normalised image coordinate in the χ² gate only (the pixel rows of
-            ``S = HPHᵀ + R``; a depth row keeps its own σ there), 0 (default) = ``feature_noise``. The update keeps
-            ``feature_noise``: a track's pixel errors are mostly a per-track constant (measured, stop 20) that the
-            feature's position absorbs in the null-space residual the gate sees, but the update counts each
-            observation as independent, so its σ must cover that shared part; the gate's σ must describe the
-            residual it tests. Measured (oracle back end, same tracks, 3 seeds): a tighter pixel gate helps exact
-            depth and the stereo front end at every length but makes SGBM and inpainted depth worse at 120 s
-            (0.001: rosario-like-02 depth-raw 0.112 → 0.181 m, Telea and ``paper`` diverge on 1 of 3 seeds), so
-            the depth front end keeps 0 (its gate stays loose: γ/dof ≈ 0.01). Re-measured after stop 31's γ fix
-            (pipeline runs, 120 s, 5 seeds, 0.0005): rosario-like-01 depth-raw 0.833 → 0.255 m and ``paper``
-            0.647 → 0.242 m (better on every seed), but rosario-like-02 depth-raw 0.199 → 0.294 m and ``paper``
-            0.135 → 0.375 / 28.7 / 0.527 / 0.195 / 0.142 m, and on rosario-like-03 3 of 5 depth-raw and 5 of 5
-            ``paper`` runs diverge (4 of 5 ``paper`` with ``depth_fallback_measured``): still not a default
-            (README, stop 33). Why it diverges (stop 34): the gate locks the depth out once the filter's scale is a
-            few per cent off (see ``gate_depth_scale``).
+            ``S = HPHᵀ + R``; a depth row keeps its own σ there), 0 = ``feature_noise``. Default 0.0005 ≈ 0.18 px
+            (since stop 35, with ``gate_depth_scale`` 0.1; γ/dof median 0.17–0.25 on the depth variants at 120 s,
+            0.04–0.05 at the update's σ). The update keeps ``feature_noise``: a track's pixel errors are mostly a
+            per-track constant and a drift (measured, stop 20) that the feature's position absorbs in the
+            null-space residual the gate sees, but the update counts each observation as independent, so its σ
+            must cover the shared part; the gate's σ must describe the residual it tests. Alone, a tight gate locks
+            the depth out once the filter's scale is a few per cent off (stop 34: ``gate_depth_scale``); with that
+            term and without monocular features (pipeline runs, 120 s, 5 seeds, ATE RMSE m, gate at the update's
+            σ → this default): rosario-like-01 depth-raw 0.129 → 0.086 and ``paper`` 0.189 → 0.121, rosario-like-02
+            0.170 → 0.144 and 0.206 → 0.190, rosario-like-03 0.136 → 0.150 and 0.203 → 0.181; 30 of 30 runs ok.
+            Earlier (with monocular features) a tight gate diverged on rosario-like-03 (README, stops 33–34).
         stereo_gate_noise: ``gate_noise`` of the ``stereo`` front end (``msckf.vio.filter_config``), 0 =
-            ``gate_noise``. Default 0.0005 ≈ 0.18 px (γ/dof median 0.56 / 0.64 on the 10 s presets 02 / 03, 0.66
+            ``gate_noise``. Default 0.0005 ≈ 0.18 px, the stereo front end's own setting since stop 26 (when the
+            depth front end still gated at the update's σ) (γ/dof median 0.56 / 0.64 on the 10 s presets 02 / 03, 0.66
             at 120 s on 02, against 0.010 with the update's σ): ATE 0.0102 → 0.0098 / 0.0225 → 0.0132 m (10 s
             02 / 03) and 0.177 → 0.079 m (120 s 02), 3 seeds each.
         chi2_quantile, chi2_dof: [port] χ² gate. Each feature is accepted when
@@ -254,11 +252,12 @@ class UpdateOptions:
             rosario-like-01 depth-raw 0.833 → 0.420 m and ``paper`` 0.647 → 0.302 m (better on every seed), but
             rosario-like-02 depth-raw 0.199 → 0.295 m and ``paper`` 0.135 → 0.287 m, and 4 of 30 runs diverge,
             all in turns (a per-feature term cannot tell a global scale error from a fill biased along its whole
-            track). 0 (default) disables it.
+            track). Without monocular features (``depth_keep_mono`` false) no run diverges and it is the default
+            with the tight gate since stop 35 (figures under ``gate_noise``); 0 disables it.
     """
 
     feature_noise: float = 0.007
-    gate_noise: float = 0.0
+    gate_noise: float = 0.0005
     stereo_gate_noise: float = 0.0005
     chi2_quantile: float = 0.95
     chi2_dof: str = "residual"
@@ -268,7 +267,7 @@ class UpdateOptions:
     update_method: str = "qr"
     depth_fallback: bool = True
     depth_fallback_measured: bool = False
-    gate_depth_scale: float = 0.0
+    gate_depth_scale: float = 0.1
 
     def __post_init__(self) -> None:
         _check(self, positive=("feature_noise",),

@@ -8,7 +8,9 @@ b0361905f190c692 / 5d6195b13573cdac, ``gate_noise`` (issue 17, stop 26) from d0f
 167539a90d36ccf4, ``stereo_gate_noise`` (on by default, stop 26) from 0f0ab2d474ac9d7e / 1878cb1caddbe816, and
 ``depth_fallback_measured`` (issue 17, stop 33) from 77057be89b7ed8cc / 20b8d5e46530d155, and
 ``gate_depth_scale`` (issue 17, stop 34) from ee50e97f37739dc3 / e06ed8280159a524, and ``depth_keep_mono``
-(issue 17, stop 34, off by default: monocular observations ignored) from d3fa1b5a259bbd9e / 60409072592004ca.
+(issue 17, stop 34, off by default: monocular observations ignored) from d3fa1b5a259bbd9e / 60409072592004ca, and
+the depth front end's tight gate (``gate_noise`` 0.0005 + ``gate_depth_scale`` 0.1 by default, stop 35) from
+764a6c51980062fc / 7c4ba0c8b1c25055.
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "764a6c51980062fc"
+DEFAULT_MSCKF_HASH = "66600821a1f038fb"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "7c4ba0c8b1c25055"
+DEFAULT_JOB_KEY = "4ba30d7e99b0836a"
 
 
 def _job_key(msckf: dict) -> str:

@@ -94,8 +94,11 @@ def test_oc_projection_annihilates_the_unobservable_direction():
 
 
 #: The simulated world's noise as the filter is told it (normalised pixel σ = 1 px at fx 351.06).
+# the synthetic world's noise: white 1 px pixels (update and gate σ alike, not the 0.18 px gate calibrated on
+# rendered KLT tracks); its depths are unbiased, so the gate needs no shared scale term
 _WORLD_NOISE = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3,
-                    feature_noise=1.0 / 351.06, gyro_bias_cov=1e-6, acc_bias_cov=1e-4)
+                    feature_noise=1.0 / 351.06, gate_noise=1.0 / 351.06, gate_depth_scale=0.0,
+                    gyro_bias_cov=1e-6, acc_bias_cov=1e-4)
 
 
 def _triangulated_live_rows(flt: MsckfFilter) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
