@@ -22,7 +22,7 @@ from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
 from msckf.propagation import propagate_samples
-from msckf.rotation import matrix_to_quat_xyzw, orthonormalize
+from msckf.rotation import matrix_to_quat_xyzw, orthonormalize, so3_log
 from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
@@ -686,6 +686,19 @@ class MsckfFilter:
         return PoseEstimate(stamp_s=stamp, p_world=s.p.copy(), q_world_imu_xyzw=matrix_to_quat_xyzw(s.R_w_i),
                             v_world=s.v.copy(), gyro_bias=s.b_g.copy(), acc_bias=s.b_a.copy(),
                             cov_diag=np.diag(self.P)[:IMU_DIM].copy())
+
+    def pose_nees(self, R_w_i_true: np.ndarray, p_w_true: np.ndarray) -> tuple[float, float]:
+        """NEES of a true IMU pose against the current estimate and covariance: (position, orientation).
+
+        ``R_w_i_true`` (3, 3) maps IMU-frame vectors into this filter's world frame, ``p_w_true`` (3,) is the IMU
+        position in it (m). Position error ``p_true − p̂`` against the covariance block of p (m²); orientation error
+        ``Log(R̂ᵀ R_true)`` (rad, the filter's local perturbation) against the block of θ. Each is χ²(3) for a
+        consistent filter (mean 3)."""
+        s = self._initialised()
+        ep = np.asarray(p_w_true, dtype=np.float64) - s.p
+        et = so3_log(s.R_w_i.T @ np.asarray(R_w_i_true, dtype=np.float64))
+        return (float(ep @ np.linalg.solve(self.P[12:15, 12:15], ep)),
+                float(et @ np.linalg.solve(self.P[0:3, 0:3], et)))
 
     def _online_reset(self) -> bool:
         thr = self.config.health.position_std_threshold

@@ -150,11 +150,12 @@ class FeatureStore:
     def _grow(self, need: int) -> None:
         old = self.capacity
         new = max(2 * old, old + need)
-        arrays = (self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled, self.has,
-                  self.src, self.initialized, self.pos)
+        def arrays() -> tuple[np.ndarray, ...]:
+            return (self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled, self.has,
+                    self.src, self.initialized, self.pos)
+        before = arrays()
         self._alloc(new)
-        for dst, src in zip((self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled,
-                             self.has, self.src, self.initialized, self.pos), arrays):
+        for dst, src in zip(arrays(), before):
             dst[:old] = src
         self._free = list(range(new - 1, old - 1, -1)) + self._free
 

@@ -39,9 +39,10 @@ from msckf.frontend import DepthFrontend
 from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, sample_depth
 from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
+from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "Rung", "standard_rungs",
-           "structure_rungs", "run_backend", "evaluate_rung"]
+           "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
 
 
 @dataclass
@@ -429,11 +430,13 @@ def structure_rungs(noise_seed: int = 0) -> list[Rung]:
             Rung("raw-sign-flipped", sign_flipped), Rung("gauss@raw-sigma", gauss)]
 
 
-def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
-                use_sigma: bool = True) -> tuple[Trajectory, str | None, dict[str, Any]]:
+def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_sigma: bool = True,
+                truth: TrueImuPoses | None = None) -> tuple[Trajectory, str | None, dict[str, Any]]:
     """Feed the recorded tracks with the rung's depths and the IMU to a fresh back end.
 
-    Returns (IMU trajectory, divergence reason or None, per-run statistics: depth coverage, gate counts).
+    Returns (IMU trajectory, divergence reason or None, per-run statistics: depth coverage, gate counts and, with
+    ``truth``, the time-averaged NEES of the IMU position and orientation (χ²(3) each: 3 when the filter's
+    covariance matches its error; ``pipeline.oracle_truth``)).
     """
     if rung.keep_mono and not config.depth.depth_keep_mono:
         config = replace(config, depth=replace(config.depth, depth_keep_mono=True))
@@ -445,6 +448,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
     k = 0
     n_depth = n_feat = n_gated = n_fallback = 0
     g_ratio: list[np.ndarray] = []
+    nees = NeesAccumulator(truth)
     failure = None
     try:
         for i, fr in enumerate(log.frames):
@@ -475,6 +479,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
                 stamps.append(pose.stamp_s)
                 ps.append(pose.p_world)
                 qs.append(pose.q_world_imu_xyzw)
+                nees.add(filt, pose.stamp_s)
     except FilterDivergedError as exc:
         failure = exc.reason
     traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
@@ -483,7 +488,34 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any,
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
                            "depth_fallback": n_fallback,
                            "gamma_per_dof_median": float(np.median(gr)) if len(gr) else float("nan"),
-                           "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan")}
+                           "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan"),
+                           **nees.stats()}
+
+
+class NeesAccumulator:
+    """Per-frame NEES of one run's IMU pose against the truth (``pipeline.oracle_truth``); a no-op without truth.
+
+    ``add(filter, stamp_s)`` after each pose the filter returns; ``stats()`` gives ``nees_position_mean`` and
+    ``nees_orientation_mean`` (time averages over the frames within the truth's span; NaN when there were none).
+    """
+
+    def __init__(self, truth: TrueImuPoses | None) -> None:
+        self._anchored = AnchoredTruth(truth) if truth is not None else None
+        self.position: list[float] = []
+        self.orientation: list[float] = []
+
+    def add(self, filt: MsckfFilter, stamp_s: float) -> None:
+        if self._anchored is None or filt.state is None or not self._anchored.poses.covers(stamp_s):
+            return
+        R_true, p_true = self._anchored(stamp_s, filt.state.R_w_i, filt.state.p)
+        e_p, e_t = filt.pose_nees(R_true, p_true)
+        self.position.append(e_p)
+        self.orientation.append(e_t)
+
+    def stats(self) -> dict[str, float]:
+        def mean(v: list[float]) -> float:
+            return float(np.mean(v)) if v else float("nan")
+        return {"nees_position_mean": mean(self.position), "nees_orientation_mean": mean(self.orientation)}
 
 
 def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,

@@ -19,6 +19,7 @@ from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams, to_grey
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.depth_oracle import (
+    NeesAccumulator,
     Rung,
     TrackLog,
     evaluate_rung,
@@ -29,6 +30,7 @@ from pipeline.depth_oracle import (
 )
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
+from pipeline.oracle_truth import TrueImuPoses
 from pipeline.run_job import lever_arms_from_tf
 from pipeline.sim.sequence import SimulatedSequence
 
@@ -97,6 +99,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
         logs[seed] = log
     lever = lever_arms_from_tf(seq).get("lever_arm_imu")
     return {"logs": logs, "rig": rig, "gt": str(sim.gt_antenna_true_path), "lever": lever,
+            "imu_truth": TrueImuPoses.from_truth(truth),
             "truth_stats": truth_stats, "depth_errors": _depth_errors(logs, methods)}
 
 
@@ -118,7 +121,9 @@ def _depth_errors(logs: dict[int, TrackLog], methods: Sequence[str]) -> dict[str
 
 def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] | None = None,
                methods: Sequence[str] = (), use_sigma: bool = True) -> dict[str, dict[str, Any]]:
-    """ATE RMSE of every rung for every seed: ``{rung: {"ate": {seed: m}, "failed": {seed: reason}, ...}}``."""
+    """ATE RMSE of every rung for every seed: ``{rung: {"ate": {seed: m}, "failed": {seed: reason}, ...}}``, with the
+    runs' time-averaged NEES of position and orientation averaged over seeds (``nees_position`` /
+    ``nees_orientation``: 3 for a consistent filter) where ``prepared`` has the true IMU poses."""
     rungs = rungs or standard_rungs(methods)
     out: dict[str, dict[str, Any]] = {}
     for rung in rungs:
@@ -126,7 +131,8 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
         failed: dict[int, str] = {}
         stats: dict[int, dict[str, Any]] = {}
         for seed, log in prepared["logs"].items():
-            traj, failure, st = run_backend(log, rung, config, prepared["rig"], use_sigma=use_sigma)
+            traj, failure, st = run_backend(log, rung, config, prepared["rig"], use_sigma=use_sigma,
+                                            truth=prepared.get("imu_truth"))
             stats[seed] = st
             if failure is not None or len(traj.stamps_s) < 3:
                 failed[seed] = failure or "no poses"
@@ -137,7 +143,17 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
                           "gated_out": int(sum(s["gated_out"] for s in stats.values())),
                           "depth_fallback": int(sum(s["depth_fallback"] for s in stats.values())),
                           "gamma_per_dof_median": float(np.nanmedian([s["gamma_per_dof_median"]
-                                                                      for s in stats.values()]))}
+                                                                      for s in stats.values()])),
+                          **_mean_nees([stats[s] for s in ate])}
+    return out
+
+
+def _mean_nees(stats: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """The seeds' mean of each run's time-averaged NEES (runs that did not diverge; NaN without truth)."""
+    out = {}
+    for key, name in (("nees_position_mean", "nees_position"), ("nees_orientation_mean", "nees_orientation")):
+        v = [s[key] for s in stats if np.isfinite(s.get(key, np.nan))]
+        out[name] = float(np.mean(v)) if v else float("nan")
     return out
 
 
@@ -198,9 +214,11 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     ate: dict[int, float] = {}
     failed: dict[int, str] = {}
     gamma_medians: list[float] = []
+    nees_stats: list[dict[str, float]] = []
     gated_out = 0
     for seed in seeds:
         vio = Msckf(config, seq.calibration, variant="stereo", seed=seed)
+        nees = NeesAccumulator(prepared.get("imu_truth"))
         stamps, ps, qs = [], [], []
         gammas: list[np.ndarray] = []
         k = 0
@@ -221,6 +239,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                     stamps.append(pose.stamp_s)
                     ps.append(pose.p_world)
                     qs.append(pose.q_world_imu_xyzw)
+                    nees.add(vio.filter, pose.stamp_s)
         except FilterDivergedError as exc:
             failed[seed] = exc.reason
             continue
@@ -230,5 +249,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
         ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+        nees_stats.append(nees.stats())
     return {"ate": ate, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
-            "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan")}
+            "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan"),
+            **_mean_nees(nees_stats)}

@@ -42,18 +42,25 @@ def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:
 def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> list[str]:
     """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
     carry a depth, the χ² gate's median γ/dof, features gated out, depth fall-backs, failed runs."""
-    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | gated out | depth fallback "
-             "| failed |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | NEES p / θ | gated out "
+             "| depth fallback | failed |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]
         lines.append(f"| {name} | {np.nanmean(a) if np.isfinite(a).any() else float('nan'):.4f} | "
                      f"{' '.join(f'{x:.4f}' for x in a)} | "
                      f"{r.get('depth_fraction', float('nan')):.2f} | "
-                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {r.get('gated_out', '')} | "
+                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {_nees_cell(r)} | "
+                     f"{r.get('gated_out', '')} | "
                      f"{r.get('depth_fallback', '')} | "
                      f"{len(r['failed'])} |")
     return lines
+
+
+def _nees_cell(r: Mapping[str, Any]) -> str:
+    """``p / θ`` NEES means of a rung (3 = consistent), or empty where not measured."""
+    p, t = r.get("nees_position", float("nan")), r.get("nees_orientation", float("nan"))
+    return f"{p:.1f} / {t:.1f}" if np.isfinite(p) or np.isfinite(t) else ""
 
 
 def ladder_checks(results: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> dict[str, dict[str, Any]]:
@@ -125,13 +132,21 @@ class LadderResult:
                     cell += f" ({len(r['failed'])} failed)"
                 cells.append(cell)
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
+        nees_cells = {n: [_nees_cell(self.results[s].get(n, {})) for s in seqs] for n in names}
+        nees_lines: list[str] = []
+        if any(c for cells in nees_cells.values() for c in cells):
+            nees_lines = ["", "NEES of the IMU position / orientation against the truth (time average over each run, "
+                          "mean over seeds; χ²(3): **3 when the filter's covariance matches its error**, above it "
+                          "the filter is overconfident; truth anchored at each run's first pose in yaw and "
+                          "position only):", "", head, "|---|" + "---|" * len(seqs),
+                          *(f"| {n} | " + " | ".join(c) + " |" for n, c in nees_cells.items())]
         ok, bad = self.verdict
         dur = f"{self.duration_s:g} s sequences, " if self.duration_s else ""
         out = ["ATE RMSE (m, mean over seeds " + ", ".join(map(str, self.seeds)) + f"; {dur}against the simulator's "
                "true antenna positions, SE(3)). Each row replaces only the depth values attached to the same "
                "recorded tracks; *exact* is the tracked 3-D point's true depth, not the depth map's value at the "
                "pixel (a corner on a depth edge reads the background). `inpainted[M]` is what a depth-inpainted "
-               "run gets; `mono` carries no depth at all.", "", *lines, "",
+               "run gets; `mono` carries no depth at all.", "", *lines, *nees_lines, "",
                f"**ladder monotone: {'yes' if ok else 'no'}** (ATE must not grow as the depth error falls, within "
                "2 standard errors of the paired per-seed differences + 3 %)."]
         for seq, c in ladder_checks(self.results).items():

@@ -102,6 +102,8 @@ def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_
     # and the whole ladder runs on it (values are not checked here: 0.8 s of motion is too short)
     res = run_ladder(prep, config)
     assert set(res) >= {"depth-raw", "exact-everywhere", "exact+10%"} and not res["depth-raw"]["failed"]
+    # every rung that ran has the NEES of its pose against the simulator's truth
+    assert all(np.isfinite(r["nees_position"]) and r["nees_position"] > 0 for r in res.values() if r["ate"])
 
 
 def test_per_track_noise_rung_gives_each_track_one_error_in_every_frame():

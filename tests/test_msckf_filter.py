@@ -306,3 +306,16 @@ def test_depth_keep_mono_false_ignores_monocular_observations_exactly():
         runs[name] = np.array([np.r_[p.p_world, p.cov_diag] for _, p in iterate(world, flt) if p is not None])
     assert np.array_equal(runs["ignored"], runs["removed"])
     assert not np.array_equal(runs["ignored"], runs["kept"])
+
+
+def test_pose_nees_weighs_the_pose_error_by_the_filters_covariance():
+    """``pose_nees``: position error against the p block, orientation error (R̂ᵀR_true) against the θ block."""
+    from msckf.config import load_config
+
+    flt = MsckfFilter(load_config(None), np.eye(4), np.eye(4))
+    P0 = np.diag(np.r_[[1e-4] * 3, [1e-6] * 3, [1e-2] * 3, [1e-4] * 3, [4e-2] * 3, [1e-5] * 3, [1e-5] * 3])
+    R0, p0 = so3_exp(np.array([0.0, 0.0, 0.3])), np.array([1.0, 2.0, 0.5])
+    flt.initialize(0.0, R0, p0, covariance=P0)
+    e_p, e_t = flt.pose_nees(R0 @ so3_exp(np.array([0.0, 0.02, 0.0])), p0 + np.array([0.0, 0.4, 0.0]))
+    assert e_p == pytest.approx(0.4 ** 2 / 4e-2)
+    assert e_t == pytest.approx(0.02 ** 2 / 1e-4)

@@ -77,3 +77,14 @@ def test_written_ladder_stands_right_after_table_2_and_a_removed_one_is_gone(tmp
     write_comparison_report(tmp_path, tmp_path / "report", trajectories=False)
     assert LADDER_TITLE not in (tmp_path / "report" / "report.md").read_text()
     assert LADDER_TITLE not in build_report([]).markdown()
+
+
+def test_ladder_section_has_a_nees_table_only_where_the_nees_was_measured():
+    assert "NEES" not in LadderResult({"seq-a": GOOD}, (0, 1, 2), ("paper",), 10.0).markdown()
+    with_nees = {n: {**r, "nees_position": 2.5 + i, "nees_orientation": 1.25} for i, (n, r) in enumerate(GOOD.items())}
+    with_nees["stereo"].pop("nees_position")
+    with_nees["stereo"].pop("nees_orientation")
+    md = LadderResult({"seq-a": with_nees}, (0, 1, 2), ("paper",), 10.0).markdown()
+    nees = md[md.index("NEES of the IMU position"):]
+    assert "| exact-everywhere | 2.5 / 1.2 |" in nees and "| exact+1% | 3.5 / 1.2 |" in nees
+    assert "| stereo |  |" in nees                                    # not measured: an empty cell, not "nan"

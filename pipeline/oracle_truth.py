@@ -1,0 +1,81 @@
+"""The simulator's true IMU poses in a VIO run's own world frame, for the NEES of oracle runs (issue 17).
+
+A VIO starts in a world frame of its own (gravity-aligned, its yaw and origin where it initialised), so the true
+poses (ENU) are expressed in it by the one yaw + translation that maps the true pose at the run's first estimate
+onto that estimate: the four directions a VIO cannot observe. Roll and pitch are not aligned (they are observable:
+their initial error counts), and nothing is fitted afterwards, so the position and orientation errors grow as the
+filter drifts and are compared with the covariance the filter reports (``msckf.filter.MsckfFilter.pose_nees``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+__all__ = ["TrueImuPoses", "AnchoredTruth"]
+
+
+@dataclass(frozen=True)
+class TrueImuPoses:
+    """True IMU poses of a simulated sequence, interpolated in time.
+
+    Attributes:
+        t_s: (N,) increasing stamps, s (the bag's clock).
+        p_E: (N, 3) IMU position in ENU, m.
+        q_E_xyzw: (N, 4) IMU orientation (maps IMU-frame vectors into ENU), x, y, z, w.
+    """
+
+    t_s: np.ndarray
+    p_E: np.ndarray
+    q_E_xyzw: np.ndarray
+
+    @classmethod
+    def from_truth(cls, truth: Mapping[str, np.ndarray]) -> TrueImuPoses:
+        """From a simulated sequence's truth arrays (``imu_stamp_ns``, ``p_E``, ``q_E_xyzw``)."""
+        return cls(np.asarray(truth["imu_stamp_ns"], dtype=np.float64) / 1e9,
+                   np.asarray(truth["p_E"], dtype=np.float64), np.asarray(truth["q_E_xyzw"], dtype=np.float64))
+
+    def covers(self, t_s: float) -> bool:
+        """Whether ``t_s`` lies within the truth's time span."""
+        return bool(self.t_s[0] <= t_s <= self.t_s[-1])
+
+    def at(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R_E_I (3, 3), p_E (3,)) at ``t_s`` (linear in position, spherical-linear in orientation).
+
+        Raises:
+            ValueError: ``t_s`` outside the truth's time span.
+        """
+        if not self.covers(t_s):
+            raise ValueError(f"t = {t_s:.6f} s is outside the truth's span {self.t_s[0]:.3f}–{self.t_s[-1]:.3f} s")
+        p = np.array([np.interp(t_s, self.t_s, self.p_E[:, k]) for k in range(3)])
+        j = int(np.clip(np.searchsorted(self.t_s, t_s), 1, len(self.t_s) - 1))
+        pair = Rotation.from_quat(self.q_E_xyzw[j - 1:j + 1])
+        R = Slerp(self.t_s[j - 1:j + 1], pair)([t_s]).as_matrix()[0]
+        return R, p
+
+
+class AnchoredTruth:
+    """True IMU poses in one run's world frame W: the yaw and origin of W fixed at the run's first estimate.
+
+    ``truth(t_s, R_w_i_est, p_w_est)`` returns ``(R_w_i_true, p_w_true)``; the first call fixes the anchor
+    (``R_W_E`` a rotation about the vertical, ``t_W_E`` a translation, m) so that the true pose at that time has the
+    estimate's yaw and position.
+    """
+
+    def __init__(self, poses: TrueImuPoses) -> None:
+        self.poses = poses
+        self._R_W_E: np.ndarray | None = None
+        self._t_W_E = np.zeros(3)
+
+    def __call__(self, t_s: float, R_w_i_est: np.ndarray, p_w_est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R_E, p_E = self.poses.at(t_s)
+        if self._R_W_E is None:
+            M = np.asarray(R_w_i_est) @ R_E.T
+            yaw = np.arctan2(M[1, 0], M[0, 0])
+            c, s = np.cos(yaw), np.sin(yaw)
+            self._R_W_E = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            self._t_W_E = np.asarray(p_w_est, dtype=np.float64) - self._R_W_E @ p_E
+        return self._R_W_E @ R_E, self._R_W_E @ p_E + self._t_W_E
