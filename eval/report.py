@@ -182,7 +182,8 @@ def _html_table(table: Table, failed_col: int | None) -> str:
 
 
 def markdown_to_html(md: str) -> str:
-    """Minimal Markdown → HTML for embedded tables: pipe tables, ``#`` headings, paragraphs, fenced code."""
+    """Minimal Markdown → HTML for embedded tables: pipe tables, ``#`` headings, ``- `` bullet lists, paragraphs,
+    fenced code."""
     out: list[str] = []
     lines = md.replace("\r\n", "\n").split("\n")
     i = 0
@@ -203,6 +204,15 @@ def markdown_to_html(md: str) -> str:
                 block.append(lines[j].strip())
                 j += 1
             out.append(_pipe_table_html(block))
+            i = j
+            continue
+        if stripped.startswith("- "):
+            j = i
+            items = []
+            while j < len(lines) and lines[j].strip().startswith("- "):
+                items.append(f"<li>{_inline(lines[j].strip()[2:])}</li>")
+                j += 1
+            out.append("<ul>" + "".join(items) + "</ul>")
             i = j
             continue
         m = re.match(r"^(#{1,6})\s+(.*)$", stripped)

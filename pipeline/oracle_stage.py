@@ -148,7 +148,7 @@ class LadderResult:
                "pixel (a corner on a depth edge reads the background). `inpainted[M]` is what a depth-inpainted "
                "run gets; `mono` carries no depth at all.", "", *lines, *nees_lines, "",
                f"**ladder monotone: {'yes' if ok else 'no'}** (ATE must not grow as the depth error falls, within "
-               "2 standard errors of the paired per-seed differences + 3 %)."]
+               "2 standard errors of the paired per-seed differences + 3 %).", ""]
         for seq, c in ladder_checks(self.results).items():
             out.append(f"- {check_line(seq, c)}")
         out += [f"- violation: {b}" for b in bad]

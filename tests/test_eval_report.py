@@ -148,6 +148,12 @@ def test_markdown_to_html_basics() -> None:
     assert "&lt;raw&gt;" in out and "<th>a</th>" in out and "<td>2</td>" in out
 
 
+def test_markdown_to_html_turns_consecutive_dash_lines_into_one_list() -> None:
+    out = markdown_to_html("**verdict**\n\n- first `a`\n- second\n\nafter\n")
+    assert "<ul><li>first <code>a</code></li><li>second</li></ul>" in out
+    assert out.index("<strong>verdict</strong>") < out.index("<ul>") < out.index("<p>after</p>")
+
+
 @pytest.fixture(scope="module")
 def runs_dir(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("runs")
