@@ -150,7 +150,7 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
 
 def _mean_nees(stats: Sequence[dict[str, Any]]) -> dict[str, float]:
     """The seeds' mean of each run's time-averaged NEES (runs that did not diverge; NaN without truth)."""
-    out = {}
+    out: dict[str, float] = {}
     for key, name in (("nees_position_mean", "nees_position"), ("nees_orientation_mean", "nees_orientation")):
         v = [s[key] for s in stats if np.isfinite(s.get(key, np.nan))]
         out[name] = float(np.mean(v)) if v else float("nan")

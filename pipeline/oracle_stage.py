@@ -41,7 +41,8 @@ def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:
 
 def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> list[str]:
     """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
-    carry a depth, the χ² gate's median γ/dof, features gated out, depth fall-backs, failed runs."""
+    carry a depth, the χ² gate's median γ/dof, the NEES of position / orientation where measured (3 = consistent),
+    features gated out, depth fall-backs, failed runs."""
     lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | NEES p / θ | gated out "
              "| depth fallback | failed |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -88,7 +89,8 @@ class LadderResult:
     """The ladder of several simulated sequences.
 
     ``results``: sequence → rung → ``{"ate": {seed: m}, "failed": {seed: reason}, "chain", "order",
-    "depth_fraction", "gated_out", "depth_fallback", "gamma_per_dof_median"}``; ``extra``: sequence → truth
+    "depth_fraction", "gated_out", "depth_fallback", "gamma_per_dof_median"[, "nees_position",
+    "nees_orientation"]}``; ``extra``: sequence → truth
     coverage and the depth error of each map at tracked points.
     """
 
