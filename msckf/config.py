@@ -79,6 +79,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_motion_rel_sigma": "depth",
     "depth_track_bias": "depth",
     "depth_keep_mono": "depth",
+    "depth_sigma_at_prediction": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

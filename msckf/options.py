@@ -325,6 +325,16 @@ class DepthOptions:
             0.762 → 0.136, 0.850 → 0.203 (better on every seed; stereo 0.096 / 0.125); rosario-like-02 0.199 →
             0.170 (worse on 4 of 5 seeds: 0.09–0.15 → 0.13–0.22; the mean falls by one 0.54 run), ``paper``
             0.135 → 0.206 (worse on 5 of 5); no run diverged (30 of 30).
+        depth_sigma_at_prediction: with ``depth_row``, a reading's σ_ρ is evaluated at the *predicted* depth
+            (``σ_Z / (Z · Z_pred)``, ``msckf.update.inverse_depth_sigma``) instead of the measured one (``σ_Z / Z²``).
+            A σ_Z stated relative to the measured Z (fills; the oracle's noise rungs) otherwise weighs a reading by
+            its own error — a too-far reading gets a smaller σ_ρ — which biases the estimate by ≈ 3·(σ_Z/Z)² and makes
+            the filter overconfident. Measured (stop 35, oracle, 10 s rosario-like-03, 3 seeds): exact depth + 10 %
+            noise 0.0347 → **0.0136 m**, NEES of position **14.5 → 3.2** (+ 3 %: 0.0106 → 0.0116). On the real
+            sources at 120 s (oracle, seed 0, ATE m, NEES position / orientation): rosario-like-02 depth-raw 0.168 →
+            0.174 (1.9 / 2.8 → 2.0 / 2.8), ``paper`` 0.197 → 0.184 (3.0 / 8.5 → 2.4 / 7.6); rosario-like-03 depth-raw
+            0.143 → 0.152 (1.5 / 1.0 → 1.6 / 1.0), ``paper`` 0.147 → 0.173 (10.0 / 3.6 → 13.0 / 3.3): no gain on the
+            real sources yet, so False (default) keeps ``σ_Z / Z²``.
     """
 
     depth_seed: bool = True
@@ -335,6 +345,7 @@ class DepthOptions:
     depth_motion_rel_sigma: float = 0.05
     depth_track_bias: float = 0.0
     depth_keep_mono: bool = False
+    depth_sigma_at_prediction: bool = False
 
     def __post_init__(self) -> None:
         _check(self, positive=("depth_inv_sigma",),

@@ -61,6 +61,8 @@ class MeasurementSpec:
             where an observation states no σ of its own.
         depth_gate_sigma: drop a depth row whose residual at the triangulated point exceeds this many of its σ
             (the observation then counts as monocular: its u0, v0 rows stay); 0 disables.
+        depth_sigma_at_prediction: evaluate a depth row's σ_ρ at the predicted depth instead of the measured one
+            (:func:`inverse_depth_sigma`, ``DepthOptions.depth_sigma_at_prediction``).
     """
 
     R_c1_c0: np.ndarray
@@ -72,6 +74,7 @@ class MeasurementSpec:
     depth_inv_sigma: float = 0.01
     depth_rel_sigma: float = 0.05
     depth_gate_sigma: float = 0.0
+    depth_sigma_at_prediction: bool = False
 
     @classmethod
     def from_options(cls, R_c1_c0: np.ndarray, t_c1_c0: np.ndarray, g_w: np.ndarray, update: UpdateOptions,
@@ -79,18 +82,28 @@ class MeasurementSpec:
         """The spec of a filter: its stereo extrinsics and gravity, and the noise / depth settings of its groups."""
         return cls(R_c1_c0, t_c1_c0, g_w, update.feature_noise, oc=propagation.observability_constrained,
                    depth_row=depth.depth_row, depth_inv_sigma=depth.depth_inv_sigma,
-                   depth_rel_sigma=depth.depth_rel_sigma, depth_gate_sigma=depth.depth_gate_sigma)
+                   depth_rel_sigma=depth.depth_rel_sigma, depth_gate_sigma=depth.depth_gate_sigma,
+                   depth_sigma_at_prediction=depth.depth_sigma_at_prediction)
 
 
-def inverse_depth_sigma(depth: np.ndarray, depth_sigma: np.ndarray | None, inv_sigma: float, rel_sigma: float
-                        ) -> np.ndarray:
-    """σ_ρ (1/m) of measured inverse depths: ``σ_Z / Z²`` where an observation states σ_Z (m), else the configured
-    model ``sqrt(inv_sigma² + (rel_sigma / Z)²)``. Shapes follow ``depth``; NaN where there is no depth."""
+def inverse_depth_sigma(depth: np.ndarray, depth_sigma: np.ndarray | None, inv_sigma: float, rel_sigma: float,
+                        z_pred: np.ndarray | None = None) -> np.ndarray:
+    """σ_ρ (1/m) of measured inverse depths: ``σ_Z / (Z · Z_p)`` where an observation states σ_Z (m), else the
+    configured model ``sqrt(inv_sigma² + (rel_sigma / Z_p)²)``; ``Z_p`` is ``z_pred`` (the predicted depth, m) where
+    given and positive, else the measured ``Z``. Shapes follow ``depth``; NaN where there is no depth.
+
+    With ``Z_p = Z`` this is first-order propagation at the measured depth. The update passes the predicted depth
+    with ``DepthOptions.depth_sigma_at_prediction``: a relative error (σ_Z ∝ Z: fills, the oracle's noise rungs)
+    evaluated at the measured Z makes a reading's weight depend on its own error (a too-far reading gets a smaller
+    σ_ρ), which biases the estimate by ≈ 3·(σ_Z/Z)² and makes the filter overconfident (measured, stop 35: exact
+    depth + 10 % noise, NEES of position 14.5 → 3.2, ATE 0.0347 → 0.0136 m); for SGBM (σ_Z ∝ Z², σ_Z/Z ≈ 2 %) the
+    two differ by ≈ 0.1 %."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        sig = np.sqrt(inv_sigma ** 2 + (rel_sigma / depth) ** 2)
+        zp = depth if z_pred is None else np.where(np.asarray(z_pred) > 0, z_pred, depth)
+        sig = np.sqrt(inv_sigma ** 2 + (rel_sigma / zp) ** 2)
         if depth_sigma is not None:
             stated = np.isfinite(depth_sigma) & (depth_sigma > 0)
-            sig = np.where(stated, depth_sigma / (depth * depth), sig)
+            sig = np.where(stated, depth_sigma / (depth * zp), sig)
     return np.where(np.isfinite(depth) & (depth > 0), sig, np.nan)
 
 
@@ -173,9 +186,10 @@ def measurement_blocks(spec: MeasurementSpec, p_f: np.ndarray, R_w_c: np.ndarray
     Jall = np.concatenate([J0, J1, Jd], axis=2)                          # (k, n, 5, 3) w.r.t. p0
     n_rows = 5 if spec.depth_row else 4
 
-    # whitening of the depth row to the feature σ
+    # whitening of the depth row to the feature σ (optionally evaluated at the predicted depth z0: inverse_depth_sigma)
     sig_f = spec.feature_noise
-    sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
+    sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma,
+                                  z_pred=z0 if spec.depth_sigma_at_prediction else None)
     depth_used = use_depth_row & np.isfinite(depth) & (depth > 0) & has
     depth_ok = depth_used.copy()
     scale = np.where(depth_ok, sig_f / np.where(depth_ok, sig_rho, 1.0), 0.0)

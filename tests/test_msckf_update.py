@@ -489,3 +489,32 @@ def test_gate_depth_scale_tolerates_one_scale_error_shared_by_a_features_depths(
     for factor in (1.0, 1.15):
         assert np.array_equal(blocks[factor, 0.0].r, blocks[factor, 0.1].r)
         assert np.array_equal(blocks[factor, 0.0].Hx, blocks[factor, 0.1].Hx)
+
+
+def test_depth_sigma_at_prediction_makes_a_relative_sigma_independent_of_the_reading():
+    """A σ_Z stated relative to the measured Z: at the measured depth (default) σ_ρ = rel / Z_meas depends on the
+    reading's own error; at the predicted depth it is rel / Z_pred for every reading. The configured model's
+    absolute inverse-depth part is not rescaled."""
+    from msckf.update import inverse_depth_sigma
+
+    z_true, rel = 5.0, 0.1
+    z_meas = z_true * np.array([0.9, 1.0, 1.1])
+    stated = rel * z_meas
+    at_meas = inverse_depth_sigma(z_meas, stated, 0.01, 0.05)
+    np.testing.assert_allclose(at_meas, rel / z_meas)
+    at_pred = inverse_depth_sigma(z_meas, stated, 0.01, 0.05, z_pred=np.full(3, z_true))
+    np.testing.assert_allclose(at_pred, np.full(3, rel / z_true))
+    model = inverse_depth_sigma(z_meas, None, 0.02, 0.0, z_pred=np.full(3, z_true))
+    np.testing.assert_allclose(model, 0.02)
+    # and the option reaches the update's blocks: the whitened depth row differs only with it on
+    spec = MeasurementSpec(_T10[:3, :3], _T10[:3, 3], G_W, 0.01, oc=False, depth_row=True)
+    on = MeasurementSpec(_T10[:3, :3], _T10[:3, 3], G_W, 0.01, oc=False, depth_row=True,
+                         depth_sigma_at_prediction=True)
+    rng = np.random.default_rng(0)
+    R_w_c, p_c, p_f, obs, depth = _single_feature(rng, 3)
+    depth = depth * 1.05
+    args = (p_f, R_w_c, p_c, np.swapaxes(R_w_c, -1, -2), p_c, obs, depth, np.ones((1, 3), bool),
+            np.ones((1, 3), bool), np.arange(3)[None], 3)
+    b0 = measurement_blocks(spec, *args, depth_sigma=0.1 * depth)
+    b1 = measurement_blocks(on, *args, depth_sigma=0.1 * depth)
+    assert np.array_equal(b0.r[..., :4], b1.r[..., :4]) and not np.allclose(b0.r[..., 4], b1.r[..., 4])
