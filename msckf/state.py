@@ -147,16 +147,16 @@ class FeatureStore:
         self.initialized = np.zeros(capacity, dtype=bool)
         self.pos = np.zeros((capacity, 3))
 
+    #: the per-row arrays that :meth:`_alloc` creates (all grow together)
+    _ROW_ARRAYS = ("ids", "alive", "obs", "depth", "depth_sigma", "depth_filled", "has", "src", "initialized", "pos")
+
     def _grow(self, need: int) -> None:
         old = self.capacity
         new = max(2 * old, old + need)
-        def arrays() -> tuple[np.ndarray, ...]:
-            return (self.ids, self.alive, self.obs, self.depth, self.depth_sigma, self.depth_filled, self.has,
-                    self.src, self.initialized, self.pos)
-        before = arrays()
+        before = [getattr(self, name) for name in self._ROW_ARRAYS]
         self._alloc(new)
-        for dst, src in zip(arrays(), before):
-            dst[:old] = src
+        for name, src in zip(self._ROW_ARRAYS, before):
+            getattr(self, name)[:old] = src
         self._free = list(range(new - 1, old - 1, -1)) + self._free
 
     @property

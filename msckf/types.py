@@ -6,8 +6,9 @@ coordinates are undistorted ``(X/Z, Y/Z)`` in that camera's frame — what S-MSC
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 
@@ -68,12 +69,9 @@ class FeatureObservations:
 
     def subset(self, keep: np.ndarray) -> FeatureObservations:
         """The observations where ``keep`` ((N,) bool) is True, every per-feature array cut alike."""
-        def cut(a: np.ndarray | None) -> np.ndarray | None:
-            return None if a is None else np.asarray(a)[keep]
-        return FeatureObservations(self.stamp_s, np.asarray(self.ids)[keep], np.asarray(self.cam0_xy)[keep],
-                                   np.asarray(self.cam1_xy)[keep], np.asarray(self.depth_m)[keep],
-                                   np.asarray(self.source)[keep], np.asarray(self.track_length)[keep],
-                                   cut(self.depth_sigma_m), cut(self.depth_measured))
+        arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "stamp_s"}
+        cut: dict[str, Any] = {k: None if a is None else np.asarray(a)[keep] for k, a in arrays.items()}
+        return replace(self, **cut)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -51,10 +52,12 @@ class TrueImuPoses:
         if not self.covers(t_s):
             raise ValueError(f"t = {t_s:.6f} s is outside the truth's span {self.t_s[0]:.3f}–{self.t_s[-1]:.3f} s")
         p = np.array([np.interp(t_s, self.t_s, self.p_E[:, k]) for k in range(3)])
-        j = int(np.clip(np.searchsorted(self.t_s, t_s), 1, len(self.t_s) - 1))
-        pair = Rotation.from_quat(self.q_E_xyzw[j - 1:j + 1])
-        R = Slerp(self.t_s[j - 1:j + 1], pair)([t_s]).as_matrix()[0]
-        return R, p
+        return self._slerp([t_s]).as_matrix()[0], p
+
+    @cached_property
+    def _slerp(self) -> Slerp:
+        """Spherical-linear interpolation of the orientations over all samples (built once)."""
+        return Slerp(self.t_s, Rotation.from_quat(self.q_E_xyzw))
 
 
 class AnchoredTruth:
@@ -74,8 +77,6 @@ class AnchoredTruth:
         R_E, p_E = self.poses.at(t_s)
         if self._R_W_E is None:
             M = np.asarray(R_w_i_est) @ R_E.T
-            yaw = np.arctan2(M[1, 0], M[0, 0])
-            c, s = np.cos(yaw), np.sin(yaw)
-            self._R_W_E = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            self._R_W_E = Rotation.from_rotvec([0.0, 0.0, np.arctan2(M[1, 0], M[0, 0])]).as_matrix()
             self._t_W_E = np.asarray(p_w_est, dtype=np.float64) - self._R_W_E @ p_E
         return self._R_W_E @ R_E, self._R_W_E @ p_E + self._t_W_E
