@@ -483,8 +483,49 @@ class StereoFrontend(_TrackerBase):
         return obs
 
 
+@dataclass(frozen=True)
+class DepthTracks:
+    """What the depth front end's tracking gives on one frame, before any depth is read (it never reads one).
+
+    ``depth-raw`` and ``depth-inpainted`` runs with the same seed get identical :class:`DepthTracks`, so one pass
+    can be recorded and replayed by the others (:class:`msckf.frontend_replay.RecordedDepthFrontend`).
+
+    Attributes:
+        stamp_s: image time, s.
+        ids: (N,) int64 track ids, increasing.
+        px0: (N, 2) float64 raw (distorted) left pixels.
+        xy0: (N, 2) float64 cam0 normalised undistorted coordinates.
+        life: (N,) int32 frames observed, this one included.
+        counts: the tracking steps' feature counts (``prev``, ``tracked``, ``ransac_ok``, ``new``, ``pruned``;
+            ``tracked`` / ``ransac_ok`` absent on a frame with nothing to track).
+        timings_ms: wall time of the tracking steps, ms (diagnostics only).
+    """
+
+    stamp_s: float
+    ids: np.ndarray
+    px0: np.ndarray
+    xy0: np.ndarray
+    life: np.ndarray
+    counts: dict = field(default_factory=dict)
+    timings_ms: dict = field(default_factory=dict)
+
+
+def check_depth_inputs(shape: tuple[int, int], depth_m: np.ndarray, depth_valid: np.ndarray) -> None:
+    """MsckfInputError unless ``depth_m`` is a float map and ``depth_valid`` a bool map of ``shape`` (H, W)."""
+    if not isinstance(depth_m, np.ndarray) or depth_m.shape != shape or depth_m.dtype.kind != "f":
+        raise MsckfInputError(f"depth map must be a float {shape[1]}x{shape[0]} array (metres), got "
+                              f"{getattr(depth_m, 'dtype', type(depth_m))} {getattr(depth_m, 'shape', '')}")
+    if not isinstance(depth_valid, np.ndarray) or depth_valid.shape != shape or depth_valid.dtype != bool:
+        raise MsckfInputError(f"depth validity must be a bool {shape[1]}x{shape[0]} array, got "
+                              f"{getattr(depth_valid, 'dtype', type(depth_valid))} "
+                              f"{getattr(depth_valid, 'shape', '')}")
+
+
 class DepthFrontend(_TrackerBase):
     """Left-image tracking plus per-feature depth from a depth map (variants ``depth-raw`` / ``depth-inpainted``).
+
+    :meth:`process` = :meth:`track` (never looks at the depth map) then :meth:`attach_depth`. The last frame's
+    tracks are kept in ``last_tracks`` (for recording them).
 
     Args:
         config: front-end parameters (``depth_*`` / ``min_depth_m`` / ``max_depth_m`` control the depth read).
@@ -492,6 +533,8 @@ class DepthFrontend(_TrackerBase):
         T_cam0_imu: (4, 4) maps IMU-frame points into cam0.
         seed: seeds the RANSAC generator.
     """
+
+    last_tracks: DepthTracks | None = None
 
     def process(self, stamp_s: float, left_grey: np.ndarray, depth_m: np.ndarray,
                 depth_valid: np.ndarray, depth_sigma: np.ndarray | None = None,
@@ -512,15 +555,17 @@ class DepthFrontend(_TrackerBase):
             The frame's features: ``DEPTH_MAP`` (with ``cam1_xy`` and ``depth_m``) or ``MONO``.
         """
         self._check_frame(stamp_s, {"left": left_grey})
-        shape = (self._height, self._width)
-        if not isinstance(depth_m, np.ndarray) or depth_m.shape != shape or depth_m.dtype.kind != "f":
-            raise MsckfInputError(f"depth map must be a float {shape[1]}x{shape[0]} array (metres), got "
-                                  f"{getattr(depth_m, 'dtype', type(depth_m))} {getattr(depth_m, 'shape', '')}")
-        if not isinstance(depth_valid, np.ndarray) or depth_valid.shape != shape or depth_valid.dtype != bool:
-            raise MsckfInputError(f"depth validity must be a bool {shape[1]}x{shape[0]} array, got "
-                                  f"{getattr(depth_valid, 'dtype', type(depth_valid))} "
-                                  f"{getattr(depth_valid, 'shape', '')}")
-        c = self.config
+        check_depth_inputs((self._height, self._width), depth_m, depth_valid)
+        self.last_tracks = self._track(stamp_s, left_grey)
+        return self.attach_depth(self.last_tracks, depth_m, depth_valid, depth_sigma, depth_measured)
+
+    def track(self, stamp_s: float, left_grey: np.ndarray) -> DepthTracks:
+        """Only the tracking step of :meth:`process` (no depth map needed): the frame's :class:`DepthTracks`."""
+        self._check_frame(stamp_s, {"left": left_grey})
+        self.last_tracks = self._track(stamp_s, left_grey)
+        return self.last_tracks
+
+    def _track(self, stamp_s: float, left_grey: np.ndarray) -> DepthTracks:
         timings: dict[str, float] = {}
         counts: dict[str, int] = {"prev": len(self._tracks)}
         t = time.perf_counter()
@@ -540,8 +585,22 @@ class DepthFrontend(_TrackerBase):
         tracks, counts["new"] = self._fill_vacancies(tracks, self._new_tracks(cand_px, undistort=False),
                                                       cand_resp)
         tracks, counts["pruned"] = self._prune(tracks)
-        t = _lap(timings, "detect", t)
+        _lap(timings, "detect", t)
+        # Depth observations are recomputed every frame; the tracks keep no cam1 state.
+        self._finish(stamp_s, left_grey, tracks)
+        return DepthTracks(float(stamp_s), tracks.ids, tracks.px0, tracks.xy0, tracks.life, counts, timings)
 
+    def attach_depth(self, tracks: DepthTracks, depth_m: np.ndarray, depth_valid: np.ndarray,
+                     depth_sigma: np.ndarray | None = None, depth_measured: np.ndarray | None = None
+                     ) -> FeatureObservations:
+        """The depth step of :meth:`process`: each track's depth read from the map (arguments as there); sets
+        ``last_debug``. Reads only ``self.config`` and ``self.rig``: it does not touch the tracking state."""
+        shape = (self._height, self._width)
+        check_depth_inputs(shape, depth_m, depth_valid)
+        c = self.config
+        timings = dict(tracks.timings_ms)
+        counts = dict(tracks.counts)
+        t = time.perf_counter()
         rect = self.rig.rectify_left_normalised(tracks.xy0)
         z_rect, reject = sample_depth(depth_m, depth_valid, rect, c.depth_sampling, c.depth_edge_window,
                                       c.depth_edge_threshold, c.min_depth_m, c.max_depth_m)
@@ -549,13 +608,11 @@ class DepthFrontend(_TrackerBase):
         behind = np.isfinite(z_rect) & ~np.isfinite(z0)
         reject[behind] = DepthReject.BEHIND
         has = np.isfinite(z0)
-        px1 = np.full((len(tracks), 2), np.nan)
+        px1 = np.full((len(tracks.ids), 2), np.nan)
         if has.any():
             p1 = np.concatenate([xy1[has], np.ones((int(has.sum()), 1))], axis=1)
             px1[has] = self.rig.right.project(p1)
-        t = _lap(timings, "depth", t)
-        # Depth observations are recomputed every frame; the tracks keep no cam1 state.
-        self._finish(stamp_s, left_grey, tracks)
+        _lap(timings, "depth", t)
         source = np.where(has, DepthSource.DEPTH_MAP, DepthSource.MONO).astype(np.uint8)
         sigma0 = None
         if depth_sigma is not None:
@@ -568,12 +625,12 @@ class DepthFrontend(_TrackerBase):
             if not isinstance(depth_measured, np.ndarray) or depth_measured.shape != shape:
                 raise MsckfInputError(f"depth measured mask must be a bool {shape[1]}x{shape[0]} array")
             measured = has & nearest_pixel_values(depth_measured.astype(bool), rect).astype(bool)
-        obs = FeatureObservations(float(stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
+        obs = FeatureObservations(float(tracks.stamp_s), tracks.ids.copy(), tracks.xy0.copy(), xy1, z0, source,
                                   tracks.life.astype(np.int32), sigma0, measured)
-        counts["published"] = len(tracks)
+        counts["published"] = len(tracks.ids)
         counts["with_depth"] = int(has.sum())
-        self.last_debug = FrontendDebug(float(stamp_s), obs.ids, tracks.px0.copy(), px1, obs.track_length, source,
-                                        z0, reject, counts, timings,
+        self.last_debug = FrontendDebug(float(tracks.stamp_s), obs.ids, tracks.px0.copy(), px1, obs.track_length,
+                                        source, z0, reject, counts, timings,
                                         None if sigma0 is None else sigma0.copy(), measured)
         return obs
 

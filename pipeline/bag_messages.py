@@ -27,12 +27,13 @@ class StereoFrame:
     Attributes:
         stamp_ns: left image header stamp, ns.
         left_bgr, right_bgr: (H, W, 3) uint8 raw BGR images (writable copies); ``right_bgr`` is None when the
-            caller asked for the left images only (``stereo_frames(right=False)``).
+            caller asked for the left images only (``stereo_frames(right=False)``), ``left_bgr`` None when it asked
+            for no left image (``left=False``).
         index: 0-based pair number from the start of the bag (stable across calls; used as the depth-cache key).
     """
 
     stamp_ns: int
-    left_bgr: np.ndarray
+    left_bgr: np.ndarray | None
     right_bgr: np.ndarray | None
     index: int
 

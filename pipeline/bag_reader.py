@@ -139,15 +139,16 @@ class RosarioSequence:
 
     # ---- streams (pipeline.bag_streams) ------------------------------------------------------------------------
     def stereo_frames(self, start_index: int = 0, stop_index: int | None = None,
-                      right: bool = True) -> Iterator[StereoFrame]:
+                      right: bool = True, left: bool = True) -> Iterator[StereoFrame]:
         """Stereo pairs in time order, matched by header stamp within ``pair_tolerance_ns``.
 
         A frame without a partner is skipped and counted in ``stats.unpaired_left/right``. Indices count pairs
         from the start of the bag; pairs before ``start_index`` are matched but not decoded. ``right=False``: the
-        pairs are formed as always (same indices) but the right image is not decoded (``right_bgr`` None).
+        pairs are formed as always (same indices) but the right image is not decoded (``right_bgr`` None);
+        ``left=False`` likewise for the left image.
         """
         yield from S.stereo_frames(self._bag, self._calib.image_sizes_hw(), self.pair_tolerance_ns, self.stats,
-                                   start_index, stop_index, right)
+                                   start_index, stop_index, right, left)
 
     def _imu_raw(self, start_ns: int | None, stop_ns: int | None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         return S.imu_raw(self._bag, start_ns, stop_ns)

@@ -57,12 +57,13 @@ def check_first_images(bag: BagContainer, sizes_hw: dict[str, tuple[int, int]]) 
 
 def stereo_frames(bag: BagContainer, sizes_hw: dict[str, tuple[int, int]], pair_tolerance_ns: int,
                   stats: ReaderStats, start_index: int = 0, stop_index: int | None = None,
-                  right: bool = True) -> Iterator[StereoFrame]:
+                  right: bool = True, left: bool = True) -> Iterator[StereoFrame]:
     """Stereo pairs in time order, matched by header stamp within ``pair_tolerance_ns`` (ns).
 
     A frame without a partner is skipped and counted in ``stats.unpaired_left/right``. Indices count pairs from
     the start of the bag; pairs before ``start_index`` are matched but not decoded. ``right=False``: the pairs
-    are formed as always (same indices) but the right image is not decoded (``right_bgr`` None).
+    are formed as always (same indices) but the right image is not decoded (``right_bgr`` None); ``left=False``
+    likewise for the left image (``left_bgr`` None: a consumer that needs only the stamps and indices).
     """
     st = stats
     st.stereo_pairs = st.unpaired_left = st.unpaired_right = 0
@@ -90,7 +91,8 @@ def stereo_frames(bag: BagContainer, sizes_hw: dict[str, tuple[int, int]], pair_
                 return
             left_msg, right_msg = (msg, msg_mate) if topic == L.TOPIC_LEFT_IMAGE else (msg_mate, msg)
             t_left = t if topic == L.TOPIC_LEFT_IMAGE else t_mate
-            yield StereoFrame(t_left, decode_image(bag, left_msg, L.TOPIC_LEFT_IMAGE, sizes_hw[L.TOPIC_LEFT_IMAGE]),
+            yield StereoFrame(t_left, decode_image(bag, left_msg, L.TOPIC_LEFT_IMAGE, sizes_hw[L.TOPIC_LEFT_IMAGE])
+                              if left else None,
                               decode_image(bag, right_msg, L.TOPIC_RIGHT_IMAGE, sizes_hw[L.TOPIC_RIGHT_IMAGE])
                               if right else None, index)
             continue

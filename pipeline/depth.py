@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 
 from msckf.camera import StereoRig
+from pipeline.depth_mm_kernels import mm_to_metres
 
 #: Bump when the algorithm changes in a way that changes outputs (invalidates depth caches).
 DEPTH_STAGE_VERSION = 1
@@ -228,10 +229,14 @@ def encode_depth_mm(depth_m: np.ndarray) -> np.ndarray:
 
 
 def decode_depth_mm(depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """uint16 millimetres (0 = hole) → ``(depth_m float32 with NaN holes, valid bool)``."""
-    valid = depth_mm > 0
-    depth = np.where(valid, depth_mm.astype(np.float32) / np.float32(MM_PER_M), np.float32(np.nan))
-    return depth.astype(np.float32), valid
+    """uint16 millimetres (0 = hole) → ``(depth_m float32 with NaN holes, valid bool)``, both (H, W).
+
+    depth = float32(mm) / float32(1000), computed in one compiled pass (:mod:`pipeline.depth_mm_kernels`).
+    """
+    mm = np.asarray(depth_mm)
+    if mm.ndim != 2 or mm.dtype != np.uint16:
+        raise ValueError(f"a depth map in millimetres must be a 2-D uint16 array, got {mm.dtype} {mm.shape}")
+    return mm_to_metres(mm, np.float32(MM_PER_M))
 
 
 def quantize_mm(frame: DepthFrame) -> tuple[DepthFrame, np.ndarray]:

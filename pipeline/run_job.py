@@ -16,6 +16,7 @@ divergence, which it records itself with the reason and the partial estimate.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from eval.records import RunRecord, config_hash
 from eval.trajectory import Trajectory, format_tum, read_tum
 from eval.variants import DEPTH_INPAINTED, ODOMETRY, STEREO, VARIANTS
 from msckf.errors import FilterDivergedError
+from msckf.frontend_replay import RecordedDepthFrontend
 from msckf.init import NonStaticStartError
 from msckf.vio import Msckf
 from pipeline.atomic import write_text_atomic
@@ -40,6 +42,7 @@ from pipeline.frame_log import FrameLog, GrowingArray
 from pipeline.odometry_ekf import run_odometry_ekf
 from pipeline.rosario_layout import RATE_CAMERA_HZ
 from pipeline.run_plan import RunPlan
+from pipeline.track_cache import TrackCache, TrackRecorder, track_key_parts
 from pipeline.version import code_version
 
 ESTIMATE_NAME = "estimate.tum"
@@ -52,11 +55,58 @@ def _poses_to_trajectory(poses: GrowingArray) -> Trajectory:
     return Trajectory(rows[:, 0].copy(), rows[:, 1:4].copy(), rows[:, 4:8].copy(), has_orientation=True)
 
 
-def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog) -> tuple[Trajectory, str | None]:
-    """Feed IMU and frames to the MSCKF in time order; return the trajectory and a divergence reason (or None)."""
+#: Environment variable: ``off`` makes every ``depth-*`` run track live and record nothing (benchmarks, checks).
+TRACK_CACHE_ENV = "AGRIVIO_TRACK_CACHE"
+
+
+def _track_cache(job: Job, plan: RunPlan) -> TrackCache | None:
+    """The shared track recording of a ``depth-*`` run's seed (None: no key to file it under, or switched off
+    with ``AGRIVIO_TRACK_CACHE=off``)."""
+    if not job.variant.startswith("depth") or not plan.key_parts:
+        return None
+    if os.environ.get(TRACK_CACHE_ENV, "").strip().lower() in ("off", "0", "false", "no"):
+        return None
+    return TrackCache(plan.cache_root, plan.bag_identity,
+                      track_key_parts(plan.key_parts, plan.msckf.frontend, job.seed))
+
+
+def _depth_vio(job: Job, plan: RunPlan, rig: Any, tracks: TrackCache | None) -> tuple[Msckf, str]:
+    """The VIO of a ``depth-*`` run: replaying its seed's recorded tracks when there are (``"replayed"``), else
+    tracking live (``"live"``)."""
+    if tracks is not None and tracks.n_frames() is not None:
+        fe = RecordedDepthFrontend(plan.msckf.frontend, rig, rig.T_left_imu, job.seed, tracks.frames())
+        return Msckf(plan.msckf, rig, variant="depth", seed=job.seed, frontend=fe), "replayed"
+    return Msckf(plan.msckf, rig, variant="depth", seed=job.seed), "live"
+
+
+def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog) -> tuple[Trajectory, str | None, str]:
+    """Feed IMU and frames to the MSCKF in time order; return the trajectory, a divergence reason (or None) and
+    how the front end's tracks were obtained (``stereo``, ``live``, ``recorded`` or ``replayed``; a ``depth-*``
+    run that tracks live records its tracks for the other depth variants of its seed, :mod:`pipeline.track_cache`).
+    """
     rig = seq.calibration
     variant = "stereo" if job.variant == STEREO else "depth"
-    vio = Msckf(plan.msckf, rig, variant=variant, seed=job.seed)
+    if variant == "stereo":
+        vio, tracking = Msckf(plan.msckf, rig, variant=variant, seed=job.seed), "stereo"
+    else:
+        tracks = _track_cache(job, plan)
+        vio, tracking = _depth_vio(job, plan, rig, tracks)
+        if tracking == "live" and tracks is not None:
+            with tracks.recorder() as recorder:
+                traj, reason = _feed(job, plan, seq, log, vio, recorder)
+                if reason is None and recorder.commit():
+                    tracking = "recorded"
+            return traj, reason, tracking
+    return (*_feed(job, plan, seq, log, vio, None), tracking)
+
+
+def _feed(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog, vio: Msckf,
+          recorder: TrackRecorder | None) -> tuple[Trajectory, str | None]:
+    """The frame loop of :func:`_run_vio`: IMU, images and depth in time order into ``vio``; each frame's tracks
+    into ``recorder`` when given."""
+    rig = seq.calibration
+    variant = vio.variant
+    replayed = isinstance(vio.frontend, RecordedDepthFrontend)
     imu_ns, imu = seq.imu_samples()
     depth_params = plan.depth_params(job.variant)
     depth_store = DepthCache(plan.cache_root, plan.bag_identity, depth_params) if depth_params is not None else None
@@ -71,7 +121,7 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog) -> tu
     poses = GrowingArray(np.float64, width=8)  # stamp, p, q per pose: 64 B, not three Python objects
     k_imu = 0
     try:
-        for frame in seq.stereo_frames(stop_index=plan.max_frames, right=variant == "stereo"):
+        for frame in seq.stereo_frames(stop_index=plan.max_frames, right=variant == "stereo", left=not replayed):
             t_img = frame.stamp_ns / 1e9  # the same ns → s conversion as the IMU's
             k_end = imu_samples_through(imu_ns, frame.stamp_ns, k_imu)  # ordered in integer ns, not in seconds
             for k in range(k_imu, k_end):
@@ -80,7 +130,7 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog) -> tu
                 except NonStaticStartError as exc:  # S-MSCKF needs a still start: wait for one, say so if none
                     non_static = str(exc)
             k_imu = k_end
-            left = to_grey(frame.left_bgr)
+            left = None if frame.left_bgr is None else to_grey(frame.left_bgr)
             t0 = time.perf_counter()
             if variant == "stereo":
                 pose = vio.add_frame(t_img, left, right_grey=to_grey(frame.right_bgr))
@@ -103,6 +153,8 @@ def _run_vio(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog) -> tu
                     log.add_fills(np.count_nonzero(fills), np.count_nonzero(fills & ~valid))
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=valid, depth_sigma=sigma,
                                      depth_measured=measured)
+                if recorder is not None:
+                    recorder.add(vio.frontend.last_tracks)
             log.add(t_img, vio.last_debug, time.perf_counter() - t0)
             log.add_gate(vio.last_stats)
             if pose is not None:
@@ -173,13 +225,14 @@ def run_job(job: Job) -> dict[str, Any]:
     t_start = time.perf_counter()
     seq = RosarioSequence(plan.bag, camchain=plan.camchain)
     failure = None
+    tracking = None
     # the frame log streams to a spill folder next to frames.npz while the run goes; a diverged run saves it
     # like a finished one, a run that raises leaves neither the spill nor a partial frames.npz
     with FrameLog(out / FRAMES_NAME) as log:
         if job.variant == ODOMETRY:
             est = _run_odometry(plan, seq)
         else:
-            est, failure = _run_vio(job, plan, seq, log)
+            est, failure, tracking = _run_vio(job, plan, seq, log)
             log.save()
     t_run = time.perf_counter() - t_start
     if len(est.stamps_s):
@@ -205,7 +258,7 @@ def run_job(job: Job) -> dict[str, Any]:
         gt_path=str(Path(plan.gt).resolve()) if plan.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
                "frames": int(len(log)), "feature_depth": log.depth_summary(),
-               "chi2_gate": log.gate_summary(), **{k: job.options.get(k) for k in RECORD_FIELDS},
+               "chi2_gate": log.gate_summary(), "tracks": tracking, **{k: job.options.get(k) for k in RECORD_FIELDS},
                "job": job_description(job)},
     )
     return record.to_dict()

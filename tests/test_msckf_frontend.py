@@ -7,6 +7,8 @@ against the front end's own output.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -23,6 +25,7 @@ from msckf.frontend_geometry import (
     triangulated_depths,
 )
 from msckf.frontend_grid import cell_index, top_per_group
+from msckf.frontend_replay import RecordedDepthFrontend
 from msckf.types import DepthSource
 from pipeline.plane_scene import (
     Plane,
@@ -656,3 +659,52 @@ def test_fast_detection_per_cell_crops_and_whole_image_agree(wall_seq):
         for a, b, c, ref in zip(crops, whole, chosen, (ref_px[sel], ref_resp[sel], ref_cell[sel])):
             assert np.array_equal(a, ref) and np.array_equal(b, ref) and np.array_equal(c, ref)
         assert len(sel) > 0
+
+
+class _Recording:
+    """Wraps a DepthFrontend and keeps each frame's ``last_tracks``."""
+
+    def __init__(self, fe: DepthFrontend, out: list) -> None:
+        self.fe, self.out = fe, out
+
+    def add_imu(self, *args) -> None:
+        self.fe.add_imu(*args)
+
+    def process(self, *args):
+        obs = self.fe.process(*args)
+        self.out.append(self.fe.last_tracks)
+        return obs
+
+    @property
+    def last_debug(self):
+        return self.fe.last_debug
+
+
+def test_recorded_tracks_replay_to_identical_observations(wall_seq):
+    """A RecordedDepthFrontend fed one seed's recorded tracks gives exactly the live front end's observations,
+    with another depth map too (the depth is read at replay); a recording of other images is refused."""
+    rig = wall_seq.rig
+    live = DepthFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=4)
+    recorded = []
+    recorder = _Recording(live, recorded)
+    wall_seq.run(recorder, frames=5, depth=True)
+    noisy = [(np.nan_to_num(d) * 1.02).astype(np.float32) for d in wall_seq.depth[:5]]
+    maps = [(z, np.isfinite(d) & (z > 0)) for z, d in zip(noisy, wall_seq.depth[:5])]
+    want = wall_seq.run(DepthFrontend(FrontendConfig(), rig, rig.T_left_imu, seed=4), frames=5, depth_maps=maps)
+    got = wall_seq.run(RecordedDepthFrontend(FrontendConfig(), rig, rig.T_left_imu, 4, recorded), frames=5,
+                       depth_maps=maps)
+    assert sum(len(o.ids) for o, _ in want) > 100
+    assert sum(int((o.source == DepthSource.DEPTH_MAP).sum()) for o, _ in want) > 100
+    for (ow, dw), (og, dg) in zip(want, got):
+        for name in ("ids", "cam0_xy", "cam1_xy", "depth_m", "source", "track_length"):
+            np.testing.assert_array_equal(getattr(og, name), getattr(ow, name), err_msg=name)
+        np.testing.assert_array_equal(dg.cam0_px, dw.cam0_px)
+        assert {k: v for k, v in dg.counts.items()} == dw.counts
+    shifted = [replace(tr, stamp_s=tr.stamp_s + 1e-3) for tr in recorded]
+    fe = RecordedDepthFrontend(FrontendConfig(), rig, rig.T_left_imu, 4, shifted)
+    with pytest.raises(MsckfInputError, match="recorded from other images"):
+        fe.process(wall_seq.stamps[0], None, *maps[0])
+    fe = RecordedDepthFrontend(FrontendConfig(), rig, rig.T_left_imu, 4, recorded[:1])
+    fe.process(wall_seq.stamps[0], None, *maps[0])
+    with pytest.raises(MsckfInputError, match="end after 1 frame"):
+        fe.process(wall_seq.stamps[1], None, *maps[1])
