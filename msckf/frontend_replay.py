@@ -16,7 +16,7 @@ import numpy as np
 
 from msckf.camera import StereoRig
 from msckf.errors import MsckfInputError
-from msckf.frontend import DepthFrontend, DepthTracks, check_depth_inputs
+from msckf.frontend import DepthFrontend, DepthTracks
 from msckf.frontend_config import FrontendConfig
 from msckf.types import FeatureObservations
 
@@ -46,11 +46,9 @@ class RecordedDepthFrontend(DepthFrontend):
 
         Raises:
             MsckfInputError: the recording has no more frames, or its next frame is not at ``stamp_s`` (the
-                recording belongs to other images).
+                recording belongs to other images), or the depth inputs are malformed.
         """
-        check_depth_inputs((self._height, self._width), depth_m, depth_valid)
-        tracks = self.track(stamp_s, left_grey)
-        return self.attach_depth(tracks, depth_m, depth_valid, depth_sigma, depth_measured)
+        return self.attach_depth(self.track(stamp_s, left_grey), depth_m, depth_valid, depth_sigma, depth_measured)
 
     def track(self, stamp_s: float, left_grey: np.ndarray | None = None) -> DepthTracks:
         """The next recorded frame; MsckfInputError unless it is at ``stamp_s`` (exactly, as recorded)."""

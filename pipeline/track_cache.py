@@ -23,7 +23,8 @@ The key (:func:`track_key_parts`) holds everything the tracks depend on: the bag
 camchain, the frame limit, the front-end configuration, the seed and the code fingerprint (any code change makes
 a new key: a stale recording is never replayed). A recording is written into a hidden folder and renamed into
 place only when the run saw every frame (a diverged run records nothing); two runs finishing the same key keep
-the first. A missing, partial or unreadable recording is simply not used (the run tracks live).
+the first. A missing or incomplete recording (no manifest, other key parts, a chunk file missing) is not used: the
+run tracks live. A chunk that exists but cannot be read fails the run with a message naming it.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import json
 import os
 import shutil
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
@@ -49,6 +51,7 @@ TRACKS_VERSION = 1
 CHUNK_FRAMES = 100
 COUNT_NAMES = ("prev", "tracked", "ransac_ok", "new", "pruned")
 MANIFEST = "manifest.json"
+_ARRAYS = ("stamps_s", "offsets", "ids", "px0", "xy0", "life", "counts")
 
 
 def track_key_parts(sequence_parts: dict[str, Any], frontend: FrontendConfig, seed: int) -> dict[str, Any]:
@@ -75,17 +78,22 @@ class TrackCache:
         if manifest.get("tracks_version") != TRACKS_VERSION or manifest.get("parts") != self.parts:
             return None
         n = manifest.get("n_frames")
-        return int(n) if isinstance(n, int) else None
+        if not isinstance(n, int) or not all(self._chunk_path(k).is_file() for k in range(-(-n // CHUNK_FRAMES))):
+            return None
+        return n
+
+    def _chunk_path(self, chunk: int) -> Path:
+        return self.directory / f"chunk_{chunk:06d}.npz"
 
     def frames(self) -> Iterator[DepthTracks]:
         """The recorded frames in order, read one chunk at a time; AgrivioError naming a chunk it cannot read."""
         n = self.n_frames() or 0
         for start in range(0, n, CHUNK_FRAMES):
-            path = self.directory / f"chunk_{start // CHUNK_FRAMES:06d}.npz"
+            path = self._chunk_path(start // CHUNK_FRAMES)
             try:
                 with np.load(path) as z:
-                    arrays = {k: z[k] for k in z.files}
-            except (OSError, ValueError, KeyError) as exc:
+                    arrays = {k: z[k] for k in _ARRAYS}
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
                 raise AgrivioError(f"{path}: cannot read recorded tracks ({type(exc).__name__}: {exc}); delete "
                                    f"{self.directory} to record them again") from None
             yield from _unpack(arrays)

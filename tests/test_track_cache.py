@@ -10,6 +10,7 @@ import pytest
 import pipeline.run_job as rj
 from msckf.frontend import DepthTracks
 from pipeline.cli import main
+from pipeline.errors import AgrivioError
 from pipeline.track_cache import CHUNK_FRAMES, TrackCache
 
 
@@ -66,6 +67,22 @@ def test_first_commit_wins_and_unfinished_or_foreign_recordings_are_not_used(tmp
     m = json.loads(manifest.read_text())
     manifest.write_text(json.dumps(dict(m, parts={"bag": "other"})))
     assert first.n_frames() is None
+
+
+def test_a_missing_chunk_is_not_used_and_a_corrupt_one_is_named(tmp_path):
+    cache = TrackCache(tmp_path, "bag-id", {"bag": "b"})
+    with cache.recorder() as rec:
+        for f in _frames(CHUNK_FRAMES + 1):
+            rec.add(f)
+        assert rec.commit()
+    last = cache.directory / "chunk_000001.npz"
+    data = last.read_bytes()
+    last.unlink()
+    assert cache.n_frames() is None  # incomplete: the run would track live
+    last.write_bytes(data[: len(data) // 2])  # present but truncated
+    assert cache.n_frames() == CHUNK_FRAMES + 1
+    with pytest.raises(AgrivioError, match="chunk_000001.npz: cannot read recorded tracks"):
+        list(cache.frames())
 
 
 def _records(out):
