@@ -555,6 +555,7 @@ class DepthFrontend(_TrackerBase):
             The frame's features: ``DEPTH_MAP`` (with ``cam1_xy`` and ``depth_m``) or ``MONO``.
         """
         self._check_frame(stamp_s, {"left": left_grey})
+        # checked before tracking (attach_depth checks again): a malformed map must not advance the tracks
         check_depth_inputs((self._height, self._width), depth_m, depth_valid)
         self.last_tracks = self._track(stamp_s, left_grey)
         return self.attach_depth(self.last_tracks, depth_m, depth_valid, depth_sigma, depth_measured)
