@@ -42,6 +42,12 @@ from pipeline.run_job import TRACK_CACHE_ENV  # noqa: E402
 VARIANTS = ("depth-raw", "depth-inpainted")
 
 
+def _argv(args: argparse.Namespace, out: Path) -> list[str]:
+    """``run-sequence`` of both depth variants, one seed, in this process, into ``out``."""
+    return ["run-sequence", args.preset, "--duration", str(args.duration), "--variants", ",".join(VARIANTS),
+            "--inpaint", args.method, "--runs", "1", "--executor", "serial", "--out", str(out)]
+
+
 def _run(mode: str, out: Path, args: argparse.Namespace) -> dict[str, dict]:
     """One ``run-sequence`` of both depth variants in ``mode``; each run's record by variant."""
     if mode == "shared":
@@ -50,9 +56,7 @@ def _run(mode: str, out: Path, args: argparse.Namespace) -> dict[str, dict]:
     else:
         os.environ[TRACK_CACHE_ENV] = "off"
     try:
-        code = agrivio(["run-sequence", args.preset, "--duration", str(args.duration), "--variants",
-                        ",".join(VARIANTS), "--inpaint", args.method, "--runs", "1", "--executor", "serial",
-                        "--out", str(out)])
+        code = agrivio(_argv(args, out))
     finally:
         os.environ.pop(TRACK_CACHE_ENV, None)
     if code != 0:
@@ -72,9 +76,7 @@ def main() -> None:
     rows: dict[tuple[str, str], list[dict]] = {}
     identical: list[bool] = []
     with tempfile.TemporaryDirectory(prefix="bench_pipeline_run_") as tmp:
-        agrivio(["run-sequence", args.preset, "--duration", str(args.duration), "--variants", ",".join(VARIANTS),
-                 "--inpaint", args.method, "--runs", "1", "--executor", "serial", "--out",
-                 str(Path(tmp) / "warm")])  # simulation, depth and inpainting cached; numba kernels compiled
+        agrivio(_argv(args, Path(tmp) / "warm"))  # simulation, depth and inpainting cached; numba kernels compiled
         for rep in range(args.repeats):
             order = ("live", "shared") if rep % 2 == 0 else ("shared", "live")
             got = {}

@@ -73,8 +73,9 @@ def _track_cache(job: Job, plan: RunPlan) -> TrackCache | None:
 def _depth_vio(job: Job, plan: RunPlan, rig: Any, tracks: TrackCache | None) -> tuple[Msckf, str]:
     """The VIO of a ``depth-*`` run: replaying its seed's recorded tracks when there are (``"replayed"``), else
     tracking live (``"live"``)."""
-    if tracks is not None and tracks.n_frames() is not None:
-        fe = RecordedDepthFrontend(plan.msckf.frontend, rig, rig.T_left_imu, job.seed, tracks.frames())
+    n_recorded = tracks.n_frames() if tracks is not None else None
+    if tracks is not None and n_recorded is not None:
+        fe = RecordedDepthFrontend(plan.msckf.frontend, rig, rig.T_left_imu, job.seed, tracks.frames(n_recorded))
         return Msckf(plan.msckf, rig, variant="depth", seed=job.seed, frontend=fe), "replayed"
     return Msckf(plan.msckf, rig, variant="depth", seed=job.seed), "live"
 

@@ -83,11 +83,13 @@ class TrackCache:
         return n
 
     def _chunk_path(self, chunk: int) -> Path:
-        return self.directory / f"chunk_{chunk:06d}.npz"
+        return self.directory / _chunk_name(chunk)
 
-    def frames(self) -> Iterator[DepthTracks]:
-        """The recorded frames in order, read one chunk at a time; AgrivioError naming a chunk it cannot read."""
-        n = self.n_frames() or 0
+    def frames(self, n_frames: int | None = None) -> Iterator[DepthTracks]:
+        """The recorded frames in order, read one chunk at a time; AgrivioError naming a chunk it cannot read.
+
+        ``n_frames``: what :meth:`n_frames` returned (saves reading the manifest again); None: read it."""
+        n = (self.n_frames() if n_frames is None else n_frames) or 0
         for start in range(0, n, CHUNK_FRAMES):
             path = self._chunk_path(start // CHUNK_FRAMES)
             try:
@@ -134,7 +136,7 @@ class TrackRecorder:
             parent.mkdir(parents=True, exist_ok=True)
             self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.cache.key}.", dir=parent))
         chunk = (self._n - len(self._pending)) // CHUNK_FRAMES
-        np.savez(self._tmp / f"chunk_{chunk:06d}.npz", **_pack(self._pending))
+        np.savez(self._tmp / _chunk_name(chunk), **_pack(self._pending))
         self._pending = []
 
     def commit(self) -> bool:
@@ -158,6 +160,10 @@ class TrackRecorder:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
         self._pending = []
+
+
+def _chunk_name(chunk: int) -> str:
+    return f"chunk_{chunk:06d}.npz"
 
 
 def _pack(frames: list[DepthTracks]) -> dict[str, np.ndarray]:
