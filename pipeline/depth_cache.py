@@ -56,9 +56,9 @@ def _depth_mm(buf: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _Encoded:
+class EncodedFrame:
     """One frame as stored: stamp, index, the depth stream (LZ4, or PNG in older caches) and the grey image's PNG
-    (a few hundred kB instead of ~1.5 MB)."""
+    (a few hundred kB instead of ~1.5 MB; :data:`EMPTY` when the frame has none or it was not read)."""
 
     stamp_ns: int
     index: int
@@ -67,7 +67,7 @@ class _Encoded:
     hole_ratio: float = float("nan")  # NaN: a chunk written before hole ratios were stored
 
     @classmethod
-    def of(cls, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> _Encoded:
+    def of(cls, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> EncodedFrame:
         """Encode ``frame``; ``depth_mm``: its uint16 millimetre map when the caller already has it (not rounded
         again)."""
         mm = encode_depth_mm(frame.depth_m) if depth_mm is None else depth_mm
@@ -81,19 +81,21 @@ class _Encoded:
                           _unpng(self.grey_png) if grey and self.grey_png.size else None)
 
 
-def _read_frames(path: Path) -> dict[int, _Encoded]:
+def _read_frames(path: Path, grey: bool = True) -> dict[int, EncodedFrame]:
     """The frames of one chunk file: the shared layout (:mod:`pipeline.png_chunks`), or the layout this cache
-    wrote before it (``stamps_ns``, ``indices``, optional ``hole_ratios``, ``depth_K`` / ``grey_K`` per frame)."""
+    wrote before it (``stamps_ns``, ``indices``, optional ``hole_ratios``, ``depth_K`` / ``grey_K`` per frame).
+    ``grey=False``: the grey images are not read (their streams are :data:`EMPTY`): a depth-only reader skips
+    ≈ 2/3 of a raw chunk's bytes."""
     with np.load(path) as z:
         if "indices" not in z.files:
-            c = chunk_from_npz(z)
+            c = chunk_from_npz(z, None if grey else ("depth",))
             holes = c.columns.get("hole_ratio")
-            return {int(index): _Encoded(int(stamp), int(index), c.blob("depth", k), c.blob("grey", k),
-                                         float(holes[k]) if holes is not None else float("nan"))
+            return {int(index): EncodedFrame(int(stamp), int(index), c.blob("depth", k), c.blob("grey", k),
+                                             float(holes[k]) if holes is not None else float("nan"))
                     for k, (stamp, index) in enumerate(zip(c.stamp_ns.tolist(), c.index.tolist()))}
         holes_old = z["hole_ratios"].tolist() if "hole_ratios" in z.files else None
-        return {int(index): _Encoded(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"],
-                                     float(holes_old[k]) if holes_old is not None else float("nan"))
+        return {int(index): EncodedFrame(int(stamp), int(index), z[f"depth_{k}"], z[f"grey_{k}"] if grey else EMPTY,
+                                         float(holes_old[k]) if holes_old is not None else float("nan"))
                 for k, (stamp, index) in enumerate(zip(z["stamps_ns"].tolist(), z["indices"].tolist()))}
 
 
@@ -135,8 +137,9 @@ class DepthCache:
         self.directory = Path(cache_root) / "depth" / bag_key / params.key()
         meta = self._read_meta()
         self.chunk_size = int(meta.get("chunk_size", chunk_size)) if meta else int(chunk_size)
-        self._pending: dict[int, dict[int, _Encoded]] = {}
-        self._loaded: tuple[int, dict[int, _Encoded]] | None = None
+        self._pending: dict[int, dict[int, EncodedFrame]] = {}
+        # the last chunk read: (chunk, frames, whether its grey images were read)
+        self._loaded: tuple[int, dict[int, EncodedFrame], bool] | None = None
 
     # ---- metadata ----------------------------------------------------------------------------------------------
     @property
@@ -189,23 +192,25 @@ class DepthCache:
     def _chunk_path(self, chunk: int) -> Path:
         return self.directory / f"chunk_{chunk:06d}.npz"
 
-    def _load_chunk(self, chunk: int) -> dict[int, _Encoded]:
-        if self._loaded is not None and self._loaded[0] == chunk:
+    def _load_chunk(self, chunk: int, grey: bool = True) -> dict[int, EncodedFrame]:
+        """The stored frames of ``chunk`` (``grey=False``: without their grey images; never merged into a chunk
+        that is written again, :meth:`put_encoded` reads the whole chunk)."""
+        if self._loaded is not None and self._loaded[0] == chunk and (self._loaded[2] or not grey):
             return self._loaded[1]
         path = self._chunk_path(chunk)
-        frames: dict[int, _Encoded] = {}
+        frames: dict[int, EncodedFrame] = {}
         if path.is_file():
             try:
-                frames = _read_frames(path)
+                frames = _read_frames(path, grey)
             except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
                 # a truncated or garbled chunk (zip CRC-32 / structure check) is said once and recomputed
                 print(f"warning: {path}: corrupt depth-cache chunk ({type(exc).__name__}: {exc}); it is "
                       f"recomputed", file=sys.stderr)
                 frames = {}
-        self._loaded = (chunk, frames)
+        self._loaded = (chunk, frames, grey)
         return frames
 
-    def _write_chunk(self, chunk: int, frames: dict[int, _Encoded]) -> None:
+    def _write_chunk(self, chunk: int, frames: dict[int, EncodedFrame]) -> None:
         ordered = [frames[i] for i in sorted(frames)]
         self.directory.mkdir(parents=True, exist_ok=True)
         if not self.meta_path.exists():
@@ -213,21 +218,23 @@ class DepthCache:
         write_chunk(self._chunk_path(chunk), [f.index for f in ordered], [f.stamp_ns for f in ordered],
                     {"depth": [f.depth_stream for f in ordered], "grey": [f.grey_png for f in ordered]},
                     {"hole_ratio": np.array([f.hole_ratio for f in ordered], dtype=np.float64)})
-        self._loaded = (chunk, dict(frames))
+        self._loaded = (chunk, dict(frames), True)
 
     # ---- public API --------------------------------------------------------------------------------------------
-    def _encoded(self, index: int) -> _Encoded | None:
+    def encoded(self, index: int, grey: bool = True) -> EncodedFrame | None:
+        """Frame ``index`` as stored (nothing decoded), or None; ``grey=False``: its grey image is not read (its
+        ``grey_png`` may be :data:`EMPTY`)."""
         chunk = index // self.chunk_size
-        return self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk).get(index)
+        return self._pending.get(chunk, {}).get(index) or self._load_chunk(chunk, grey).get(index)
 
     def has(self, index: int) -> bool:
         """Whether frame ``index`` is stored (nothing is decoded)."""
-        return self._encoded(index) is not None
+        return self.encoded(index, grey=False) is not None
 
     def get(self, index: int, grey: bool = True) -> DepthFrame | None:
         """The cached frame ``index`` (depth in whole millimetres) or None. ``grey=False`` skips decoding the
         rectified grey image (``left_rect_grey`` is then None): the VIO reads only the depth."""
-        enc = self._encoded(index)
+        enc = self.encoded(index, grey)
         return enc.decode(grey) if enc is not None else None
 
     def put(self, frame: DepthFrame, depth_mm: np.ndarray | None = None) -> None:
@@ -236,11 +243,15 @@ class DepthCache:
         ``depth_mm``: the frame's depth as (H, W) uint16 millimetres (``pipeline.depth.quantize_mm``) when the
         caller has rounded it already; then it is stored as is.
         """
-        chunk = frame.index // self.chunk_size
+        self.put_encoded(EncodedFrame.of(frame, depth_mm))
+
+    def put_encoded(self, enc: EncodedFrame) -> None:
+        """Store a frame encoded already (:meth:`EncodedFrame.of`, e.g. by a worker process); as :meth:`put`."""
+        chunk = enc.index // self.chunk_size
         if chunk not in self._pending:
             self._pending[chunk] = dict(self._load_chunk(chunk))
         pending = self._pending[chunk]
-        pending[frame.index] = _Encoded.of(frame, depth_mm)
+        pending[enc.index] = enc
         if len(pending) == self.chunk_size:
             self._write_chunk(chunk, self._pending.pop(chunk))
 
@@ -255,7 +266,7 @@ class DepthCache:
         ratios were stored decode the depth), or None when a frame is missing."""
         out = np.empty(stop, dtype=np.float64)
         for index in range(stop):
-            enc = self._encoded(index)
+            enc = self.encoded(index, grey=False)
             if enc is None:
                 return None
             h = enc.hole_ratio

@@ -13,42 +13,53 @@ from pipeline.sim.jit import NJIT
 
 __all__ = ["geodesic_reach"]
 
+_FREE, _BLOCKED, _REACHED = np.uint8(1), np.uint8(0), np.uint8(2)
 
 @numba.njit(**NJIT)
 def geodesic_reach(seed: np.ndarray, allowed: np.ndarray, max_steps: int) -> np.ndarray:
     """(H, W) bool: the pixels joined to a ``seed`` pixel by an 8-connected path of at most ``max_steps`` steps
     whose pixels after the seed are all ``allowed``.
 
-    A multi-source breadth-first search; the same set as ``max_steps`` rounds of a 3 × 3 dilation intersected with
-    ``allowed`` (seed pixels must be allowed). seed, allowed: (H, W) bool.
+    A multi-source breadth-first search, one round per step: the same set as ``max_steps`` rounds of a 3 × 3
+    dilation intersected with ``allowed`` (seed pixels must be allowed). seed, allowed: (H, W) bool.
+
+    The grid is held flat with a one-pixel blocked border (no bounds tests, neighbours at fixed offsets) and
+    each round expands only the previous round's new pixels (≈ 4× faster than a queue of (y, x) with a
+    distance map, measured on 672×376 SGBM masks).
     """
     h, w = seed.shape
-    dist = np.full((h, w), -1, np.int32)
-    queue = np.empty(h * w, np.int64)
-    tail = 0
+    wp = w + 2
+    state = np.zeros((h + 2) * wp, np.uint8)  # border and not-allowed pixels stay blocked (0)
+    front = np.empty(h * w, np.int32)
+    n = 0
     for y in range(h):
+        row = (y + 1) * wp + 1
         for x in range(w):
             if seed[y, x]:
-                dist[y, x] = 0
-                queue[tail] = y * w + x
-                tail += 1
-    head = 0
-    while head < tail:
-        p = queue[head]
-        head += 1
-        y, x = p // w, p % w
-        d = dist[y, x]
-        if d >= max_steps:
-            continue
-        for dy in range(-1, 2):
-            yy = y + dy
-            if yy < 0 or yy >= h:
-                continue
-            for dx in range(-1, 2):
-                xx = x + dx
-                if xx < 0 or xx >= w or dist[yy, xx] >= 0 or not allowed[yy, xx]:
-                    continue
-                dist[yy, xx] = d + 1
-                queue[tail] = yy * w + xx
-                tail += 1
-    return dist >= 0
+                state[row + x] = 2
+                front[n] = row + x
+                n += 1
+            elif allowed[y, x]:
+                state[row + x] = 1
+    offsets = np.array([-wp - 1, -wp, -wp + 1, -1, 1, wp - 1, wp, wp + 1], np.int32)
+    nxt = np.empty(h * w, np.int32)
+    for _ in range(max_steps):
+        if n == 0:
+            break
+        m = 0
+        for i in range(n):
+            p = front[i]
+            for k in range(8):
+                q = p + offsets[k]
+                if state[q] == 1:
+                    state[q] = 2
+                    nxt[m] = q
+                    m += 1
+        front, nxt = nxt, front
+        n = m
+    out = np.empty((h, w), np.bool_)
+    for y in range(h):
+        row = (y + 1) * wp + 1
+        for x in range(w):
+            out[y, x] = state[row + x] == 2
+    return out

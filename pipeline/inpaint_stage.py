@@ -67,6 +67,12 @@ def _weights_fingerprint(method: str) -> str:
 GUIDED_METHODS: frozenset[str] = frozenset()
 
 
+def check_method(method: str) -> None:
+    """Raise :class:`AgrivioError` when ``method`` is not an inpainting method of :data:`inpaint.METHODS`."""
+    if method not in METHODS:
+        raise AgrivioError(f"unknown inpainting method {method!r}; available: {', '.join(sorted(METHODS))}")
+
+
 def uses_guide(method: str) -> bool:
     """Whether ``method`` reads the guide image (:data:`GUIDED_METHODS` or the method's ``uses_guide``)."""
     return method in GUIDED_METHODS or bool(getattr(METHODS.get(method), "uses_guide", False))
@@ -99,8 +105,7 @@ def inpainted_stream(sequence: Any, params: InpaintParams, cache_root: Path | st
     the result does not depend on the number of workers. ``stop_index``: only frames ``0 .. stop_index-1`` (the
     runs' ``--max-frames``); the cache is marked complete only when the whole sequence was seen.
     """
-    if params.method not in METHODS:
-        raise AgrivioError(f"unknown inpainting method {params.method!r}; available: {', '.join(sorted(METHODS))}")
+    check_method(params.method)
     st = stats if stats is not None else {}
     st.update(computed=0, cached=0, compute_s=0.0)
     store = DepthCache(cache_root, sequence.identity(), params)

@@ -89,13 +89,16 @@ def read_chunk(path: Path | str) -> Chunk:
         return chunk_from_npz(z)
 
 
-def chunk_from_npz(z: np.lib.npyio.NpzFile) -> Chunk:
-    """The :class:`Chunk` of an open ``.npz`` in this layout (for a reader that has already opened the file)."""
+def chunk_from_npz(z: np.lib.npyio.NpzFile, layers: Sequence[str] | None = None) -> Chunk:
+    """The :class:`Chunk` of an open ``.npz`` in this layout (for a reader that has already opened the file).
+
+    ``layers``: read only these layers (the others are neither read nor checked; None: all)."""
     files = set(z.files)
-    layers = {name: (z[name], z[name + "_off"]) for name in files if name + "_off" in files}
-    skip = {"index", "stamp_ns"} | set(layers) | {name + "_off" for name in layers}
+    names = [name for name in files if name + "_off" in files]
+    skip = {"index", "stamp_ns"} | set(names) | {name + "_off" for name in names}
+    read = {name: (z[name], z[name + "_off"]) for name in names if layers is None or name in layers}
     columns = {name: z[name] for name in sorted(files - skip)}
-    return Chunk(z["index"], z["stamp_ns"], columns, layers)
+    return Chunk(z["index"], z["stamp_ns"], columns, read)
 
 
 __all__ = ["EMPTY", "Chunk", "chunk_from_npz", "read_chunk", "write_chunk"]

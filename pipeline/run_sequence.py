@@ -28,8 +28,9 @@ from pipeline.data_quality import check_stereo_pairing, sequence_quality
 from pipeline.depth import DepthParams
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.errors import AgrivioError
-from pipeline.inpaint_stage import InpaintParams, ensure_inpainted
+from pipeline.inpaint_stage import InpaintParams, check_method, ensure_inpainted
 from pipeline.paths import ROSARIO_CAMCHAIN
+from pipeline.prep_stage import prepare_depth_caches
 from pipeline.run_job import lever_arms_from_tf, run_job
 from pipeline.run_key import code_fingerprint, input_key, sequence_key_parts
 from pipeline.run_plan import RunPlan
@@ -144,6 +145,22 @@ def build_plan(checked: CheckedSequence, variants: Sequence[str], cache_root: Pa
                    depth=depth, inpaint=inpaint, msckf=msckf,
                    msckf_config_path=str(msckf_config) if msckf_config is not None else None,
                    key_parts=key_parts, quality=checked.quality, **levers)
+
+
+def prepare_depth(checked: CheckedSequence, variants: Sequence[str], methods: Sequence[str], cache_root: Path,
+                  max_frames: int | None = None, workers: int | None = None, progress: bool = True
+                  ) -> dict[str, Any] | None:
+    """Fill the depth cache and the inpainted caches of ``methods`` that the ``depth-*`` variants of a checked
+    sequence read, in one pass on one process pool (:func:`pipeline.prep_stage.prepare_depth_caches`); the
+    statistics, or None when no variant reads depth. :func:`prepare_sequence` then finds them cached."""
+    if not any(v.startswith("depth") for v in variants):
+        return None
+    src = checked.source
+    seq = RosarioSequence(src.bag, camchain=src.camchain)
+    depth = DepthParams()
+    inpaints = [InpaintParams(depth=depth, method=m) for m in methods] if DEPTH_INPAINTED in variants else []
+    return prepare_depth_caches(seq, depth, inpaints, cache_root, stop_index=max_frames, workers=workers,
+                                progress=progress)
 
 
 def prepare_sequence(spec: SequenceSpec, variants: Sequence[str], cache_root: Path, inpaint_method: str = "paper",
@@ -266,16 +283,14 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
     are retried unless ``keep_failed``. ``extra_inpaint_methods``: more methods of ``depth-inpainted`` (when that
     variant is asked for), run in ``OUT/<sequence>/depth-inpainted-<method>/``; all jobs run as one matrix.
     """
-    from inpaint import METHODS
-
     check_variants(variants)
     check_positive_int("max_frames", max_frames)
     check_positive_int("workers", workers)
     extra = [m for m in dict.fromkeys(extra_inpaint_methods) if m != inpaint_method] \
         if DEPTH_INPAINTED in variants else []
-    for method in ([inpaint_method] if DEPTH_INPAINTED in variants else []) + extra:
-        if method not in METHODS:
-            raise AgrivioError(f"unknown inpainting method {method!r}; available: {', '.join(sorted(METHODS))}")
+    methods = ([inpaint_method] if DEPTH_INPAINTED in variants else []) + extra
+    for method in methods:
+        check_method(method)
     msckf = resolve_msckf_config(msckf_config)  # the one read of --config; every run gets this object
     check_output_dir(out_dir)
     user_errors = user_error_types()
@@ -292,6 +307,7 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
     jobs: list[Job] = []
     for c in tqdm(checked, desc="sequences", unit="seq", disable=not progress or len(checked) < 2):
         try:
+            prep = prepare_depth(c, variants, methods, cache_root, max_frames, workers, progress)
             prepared = prepare_sequence(c.spec, variants, cache_root, inpaint_method, msckf_config, max_frames,
                                         progress, checked=c, msckf=msckf)
         except user_errors as exc:
@@ -300,6 +316,10 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
             print(f"agrivio: sequence {c.spec.source} failed: {exc}", file=sys.stderr)
             failed += _failed_sequence_records(c.spec, f"{type(exc).__name__}: {exc}", variants, seeds, out_dir)
             continue
+        if prep is not None:
+            prepared.stage_timings["prepare_s"] = prep["wall_s"]
+            prepared.depth_stats["prepared"] = {k: prep[k] for k in ("frames", "cached", "depth_computed",
+                                                                     "inpainted", "depth_s", "inpaint_s")}
         jobs += plan_jobs(prepared, variants, seeds, out_dir)
         for method in extra:
             try:
