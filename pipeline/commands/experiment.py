@@ -10,8 +10,9 @@ Telea, odometry} × five seeded runs, then the comparison report. Scales (simula
 
 It resumes: killed and started again with the same arguments, it reuses every cached simulation, depth and
 inpainted frame and every run record made from the same inputs, and runs only what is missing (failed runs are
-retried). Runs go on the local process pool (``--workers``) or on Ray (``--executor ray``). Progress: one bar per
-preparation stage, then one bar with an ETA over every run of the matrix.
+retried). Runs go on the local process pool (``--workers``) or on Ray (``--executor ray``). Progress: a bar for each
+sequence's simulation and one for its preparation (SGBM depth and every inpainting method, frame by frame on one
+pool: :mod:`pipeline.prep_stage`), then one bar with an ETA over every run of the matrix.
 """
 
 from __future__ import annotations
