@@ -39,6 +39,7 @@ from pipeline.depth_cache import DepthCache
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.errors import AgrivioError
 from pipeline.frame_log import FrameLog, GrowingArray
+from pipeline.imu_cache import cached_imu_samples
 from pipeline.odometry_ekf import run_odometry_ekf
 from pipeline.rosario_layout import RATE_CAMERA_HZ
 from pipeline.run_plan import RunPlan
@@ -108,7 +109,7 @@ def _feed(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog, vio: Msc
     rig = seq.calibration
     variant = vio.variant
     replayed = isinstance(vio.frontend, RecordedDepthFrontend)
-    imu_ns, imu = seq.imu_samples()
+    imu_ns, imu = cached_imu_samples(seq, plan.cache_root)
     depth_params = plan.depth_params(job.variant)
     depth_store = DepthCache(plan.cache_root, plan.bag_identity, depth_params) if depth_params is not None else None
     if depth_store is not None and not depth_store.has_frames(plan.max_frames):
