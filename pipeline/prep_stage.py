@@ -96,11 +96,12 @@ def _tasks(seq: Any, raw: DepthCache, stores: Sequence[DepthCache], inpaint: Seq
            depth: DepthParams, stop: int | None, stats: dict[str, Any]) -> Iterator[_Task]:
     """The frames that miss something, in order; frames with nothing missing are counted as cached."""
     need_images = not raw.has_frames(stop)
+    guide = any(uses_guide(p.method) for p in inpaint)  # read the raw frames' grey images only for a guide
     frames = seq.stereo_frames(stop_index=stop, left=need_images, right=need_images)
     for sf in frames:
         stats["frames_seen"] = sf.index + 1
         todo = tuple(p for p, s in zip(inpaint, stores) if not s.has(sf.index))
-        raw_enc = raw.encoded(sf.index)
+        raw_enc = raw.encoded(sf.index, grey=guide)
         if raw_enc is not None and not todo:
             stats["cached"] += 1
             continue
@@ -131,7 +132,7 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
         Statistics: ``frames`` (computed, in a worker), ``cached`` (frames with nothing missing), ``depth_computed``,
         ``inpainted`` (method → frames computed), ``depth_s`` / ``inpaint_s`` (method → worker seconds), ``wall_s``.
     Raises:
-        AgrivioError: an unknown inpainting method, or an ``inpaint`` entry for other depth parameters.
+        AgrivioError: an unknown inpainting method. ValueError: an ``inpaint`` entry for other depth parameters.
     """
     inpaint = list(dict.fromkeys(inpaint))
     for p in inpaint:
@@ -153,7 +154,7 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
         methods = ", ".join(p.method for p in inpaint)
         bar = tqdm(total=total if stop is None else min(total, stop), disable=not progress, unit="frame",
                    leave=False, desc="depth" + (f" + inpainting ({methods})" if methods else ""))
-        by_key = {p.key(): s for p, s in zip(inpaint, stores)}
+        store_of = dict(zip(inpaint, stores))  # frozen parameters compare by value (a task's are pickled copies)
         pool = spawn_pool(n_workers, _init_worker, (seq.calibration,)) if n_workers > 1 else None
         if pool is None:
             _init_worker(seq.calibration)
@@ -166,7 +167,7 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
                     stats["depth_computed"] += 1
                     stats["depth_s"] += done.depth_s
                 for p, enc, s in zip(task_inpaint, done.inpainted, done.inpaint_s):
-                    by_key[p.key()].put_encoded(enc)
+                    store_of[p].put_encoded(enc)
                     stats["inpainted"][p.method] += 1
                     stats["inpaint_s"][p.method] += s
                 stats["frames"] += 1
