@@ -59,3 +59,18 @@ def test_world_blocks_do_not_depend_on_generation_order() -> None:
         np.testing.assert_array_equal(first[k].polys.albedo, second[k].polys.albedo)
     assert len(first[(10, 2)].polys) > 100
     assert not np.array_equal(first[(10, 2)].polys.verts[:5], first[(11, 2)].polys.verts[:5])
+
+
+def test_a_killed_simulations_temporary_bag_is_removed_when_the_folder_is_simulated_again(tmp_path, capsys) -> None:
+    """A simulation killed by SIGTERM / SIGKILL leaves its hidden temporary bag (GBs at 450 s); the next simulation
+    of that folder removes it, and only files of the bag's temporary-name pattern."""
+    out = tmp_path / "a"
+    first = _run(tmp_path, "a", 5)
+    stale = out / f".{first.bag_path.name}.k1ll3d.bag"
+    stale.write_bytes(b"x" * 1000)
+    other = out / ".keep.me"
+    other.write_bytes(b"y")
+    again = _run(tmp_path, "a", 5)
+    assert not stale.exists() and other.exists()
+    assert "interrupted simulation's temporary bag" in capsys.readouterr().err
+    assert again.bag_path.read_bytes() == first.bag_path.read_bytes()

@@ -24,13 +24,14 @@ Determinism: the same config and seed give bit-identical streams (and bag bytes:
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from msckf.camera import StereoRig
-from pipeline.atomic import write_json_atomic, write_text_atomic
+from pipeline.atomic import remove_stale_temporaries, write_json_atomic, write_text_atomic
 from pipeline.calibration import camchain_yaml, rig_from_camchain
 from pipeline.errors import AgrivioError
 from pipeline.paths import ROSARIO_CAMCHAIN, cache_dir
@@ -136,6 +137,8 @@ def simulate_sequence(preset_or_config: str | SimConfig, out_dir: Path | str | N
     streams = SlowStreams(world.imu, timetable.imu_ns, world.gps, timetable.gps_ns, world.odom, timetable.odom_ns,
                           world.statics, cfg.gps.hdop, imu_sink=euroc)
     bag_path = root / f"{world.name}.bag"
+    for stale, size in remove_stale_temporaries(bag_path):  # this folder is being (re)simulated: nobody else writes it
+        print(f"removed an interrupted simulation's temporary bag {stale} ({size / 1e9:.1f} GB)", file=sys.stderr)
     frames = record_sequence(world, timetable, bag_path, streams, depth_writer, euroc, compression=compression,
                              overwrite=overwrite, right_depth=right_depth, workers=workers, ae_warmup=ae_warmup,
                              progress=progress)
