@@ -270,6 +270,23 @@ def _failed_sequence_records(spec: SequenceSpec, reason: str, variants: Sequence
     return records
 
 
+def _note_preparation(prepared: PreparedSequence, prep: dict[str, Any], inpaint_method: str) -> None:
+    """Put what the one-pass preparation did into the sequence manifest: its wall time and worker seconds, and
+    per inpainting method the frames computed now and found cached (the stage counts of :func:`prepare_sequence`
+    would only see the caches it filled)."""
+    prepared.stage_timings["prepare_s"] = prep["wall_s"]
+    prepared.stage_timings["depth_worker_s"] = prep["depth_s"]
+    n = prepared.n_frames
+    prepared.depth_stats["depth_frames"] = {"computed": prep["depth_computed"], "cached": n - prep["depth_computed"]}
+    for method, computed in prep["inpainted"].items():
+        key = "inpainted_frames" if method == inpaint_method else f"inpainted_frames[{method}]"
+        prepared.depth_stats[key] = {"computed": computed, "cached": n - computed}
+        prepared.stage_timings["inpaint_worker_s" if method == inpaint_method else f"inpaint_worker_s[{method}]"] = \
+            prep["inpaint_s"][method]
+        if computed:
+            prepared.stage_timings[f"inpaint_ms_per_frame[{method}]"] = 1e3 * prep["inpaint_s"][method] / computed
+
+
 def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Sequence[int], out_dir: Path,
                cache_root: Path, inpaint_method: str = "paper", msckf_config: str | None = None,
                executor: str = "local", workers: int | None = None, ray_address: str | None = None,
@@ -316,10 +333,6 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
             print(f"agrivio: sequence {c.spec.source} failed: {exc}", file=sys.stderr)
             failed += _failed_sequence_records(c.spec, f"{type(exc).__name__}: {exc}", variants, seeds, out_dir)
             continue
-        if prep is not None:
-            prepared.stage_timings["prepare_s"] = prep["wall_s"]
-            prepared.depth_stats["prepared"] = {k: prep[k] for k in ("frames", "cached", "depth_computed",
-                                                                     "inpainted", "depth_s", "inpaint_s")}
         jobs += plan_jobs(prepared, variants, seeds, out_dir)
         for method in extra:
             try:
@@ -333,6 +346,8 @@ def run_matrix(specs: Sequence[SequenceSpec], variants: Sequence[str], seeds: Se
             prepared.depth_stats[f"inpainted_frames[{method}]"] = more.depth_stats.get("inpainted_frames")
             prepared.stage_timings[f"inpaint_s[{method}]"] = more.stage_timings.get("inpaint_s", 0.0)
             jobs += plan_jobs(more, [DEPTH_INPAINTED], seeds, out_dir, folder_suffix=f"-{method}")
+        if prep is not None:
+            _note_preparation(prepared, prep, inpaint_method)
         write_sequence_manifest(prepared, out_dir)
     records = run_jobs(jobs, run_job, executor=executor, workers=workers, ray_address=ray_address,
                        progress=progress, keep_failed=keep_failed) if jobs else []

@@ -141,6 +141,7 @@ def test_13_max_frames_limits_depth_and_inpainting_too(tmp_path, cache):
     manifest = json.loads((out / "seq" / "sequence.json").read_text())
     assert manifest["depth"]["frames"] == 2
     assert manifest["depth"]["inpainted_frames"] == {"computed": 2, "cached": 0}
+    assert manifest["depth"]["depth_frames"] == {"computed": 2, "cached": 0}
     record = _record(out, variant="depth-inpainted")
     assert record["input_key_parts"]["max_frames"] == 2
     assert "depth cache is missing" not in (record.get("failure_reason") or "")
