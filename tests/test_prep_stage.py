@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthFrame, DepthParams
-from pipeline.depth_cache import DepthCache, depth_stream
+from pipeline.depth_cache import CacheKey, DepthCache, depth_stream
 from pipeline.errors import AgrivioError
 from pipeline.inpaint_stage import InpaintParams, ensure_inpainted
 from pipeline.prep_stage import prepare_depth_caches
@@ -27,16 +27,8 @@ def _arrays(root: Path) -> dict[str, bytes]:
                 out[f"{path.relative_to(root)}/{name}"] = z[name].tobytes()
     for meta in sorted((root / "depth").rglob("meta.json")):
         out[str(meta.relative_to(root))] = str(DepthCache(root, meta.parent.parent.name,
-                                                          _Key(meta.parent.name)).n_frames).encode()
+                                                          CacheKey(meta.parent.name)).n_frames).encode()
     return out
-
-
-class _Key:
-    def __init__(self, value: str) -> None:
-        self.value = value
-
-    def key(self) -> str:
-        return self.value
 
 
 def _staged(seq: RosarioSequence, root: Path) -> None:
