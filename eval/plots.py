@@ -15,7 +15,8 @@ from matplotlib.figure import Figure
 
 from eval.trajectory import Trajectory
 
-__all__ = ["figure_bytes", "plot_top_view", "plot_error_over_time", "plot_ate_boxplot", "plot_rpe_vs_distance"]
+__all__ = ["LOG_SCALE_RATIO", "wants_log_scale", "figure_bytes", "plot_top_view", "plot_error_over_time",
+           "plot_ate_boxplot", "plot_rpe_vs_distance"]
 
 _COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 
@@ -36,6 +37,35 @@ def figure_bytes(fig: Figure, fmt: str = "png") -> bytes:
     else:
         raise ValueError(f"unknown figure format {fmt!r}")
     return buf.getvalue()
+
+
+#: Series whose typical values (medians of the positive ones) differ by more than this factor are drawn on a
+#: logarithmic axis, so a 10 m wheel-odometry error does not flatten 0.1 m VIO errors into the x axis.
+LOG_SCALE_RATIO = 20.0
+
+
+def wants_log_scale(series: Sequence[np.ndarray], ratio: float = LOG_SCALE_RATIO) -> bool:
+    """True when the medians of the positive, finite values of the series differ by more than ``ratio``."""
+    medians = []
+    for v in series:
+        v = np.asarray(v, dtype=np.float64).ravel()
+        v = v[np.isfinite(v) & (v > 0)]
+        if v.size:
+            medians.append(float(np.median(v)))
+    return len(medians) >= 2 and max(medians) > ratio * min(medians)
+
+
+def _log_y(ax, series: Sequence[np.ndarray], label: str) -> None:
+    """A logarithmic y axis (labelled so) when :func:`wants_log_scale`; its bottom at the smallest series' 5th
+    percentile of positive values (errors near 0 at an alignment point would otherwise stretch it)."""
+    if not wants_log_scale(series):
+        return
+    positive = [np.asarray(v, dtype=np.float64).ravel() for v in series]
+    positive = [v[np.isfinite(v) & (v > 0)] for v in positive]
+    floor = min(float(np.percentile(v, 5)) for v in positive if v.size)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=floor * 0.8)
+    ax.set_ylabel(f"{label} (log scale)")
 
 
 def _color(i: int) -> str:
@@ -93,6 +123,7 @@ def plot_error_over_time(series: Mapping[str, tuple[np.ndarray, np.ndarray]], ti
             ax.plot(t - origin, np.asarray(e), color=_color(i), lw=1.0, ls=_linestyle(label), label=label)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("translational error (m)")
+    _log_y(ax, [np.asarray(e) for _, e in series.values()], "translational error (m)")
     ax.grid(True, alpha=0.3)
     if series:
         ax.legend(loc="best", fontsize="small")
@@ -126,6 +157,7 @@ def plot_ate_boxplot(values: Mapping[str, Sequence[float]], failed: Mapping[str,
     ax.set_xticks(positions, ticks, fontsize="small")
     ax.set_xlim(0.4, len(labels) + 0.6)
     ax.set_ylabel(ylabel)
+    _log_y(ax, data, ylabel)
     ax.grid(True, axis="y", alpha=0.3)
     ax.set_title(title or "ATE over runs")
     return figure_bytes(fig, fmt)
@@ -147,6 +179,7 @@ def plot_rpe_vs_distance(series: Mapping[str, tuple[Sequence[float], Sequence[fl
                     label=label)
     ax.set_xlabel("travelled distance (m)")
     ax.set_ylabel(ylabel)
+    _log_y(ax, [np.asarray(mean) for _, mean, _ in series.values()], ylabel)
     ax.grid(True, alpha=0.3)
     if series:
         ax.legend(loc="best", fontsize="small")

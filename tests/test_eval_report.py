@@ -283,3 +283,19 @@ def test_long_sequence_rpe_table_per_distance_and_its_report_section() -> None:
     short = RunRecord("s", "stereo", 0, metrics={"ate_rmse_m": 0.1, "rpe": {"0.4": {"delta_m": 0.4,
                                                                                    "trans_rmse_m": 0.01}}})
     assert rpe_table([short]) is None
+
+
+def test_figures_switch_to_a_log_axis_when_variants_differ_by_orders_of_magnitude() -> None:
+    """Wheel odometry's ≈ 10 m next to the VIO's ≈ 0.1 m: a linear axis flattens the VIO variants onto zero."""
+    import io
+
+    from matplotlib.image import imread
+
+    from eval.plots import plot_ate_boxplot, wants_log_scale
+
+    assert wants_log_scale([np.array([0.15, 0.16]), np.array([0.6, 0.9]), np.array([8.4, 8.4])])
+    assert not wants_log_scale([np.array([0.15, 0.16]), np.array([0.6, 0.9])])          # 5×: stays linear
+    assert not wants_log_scale([np.array([0.0, np.nan]), np.array([9.0])])              # one usable series
+    wide = plot_ate_boxplot({"stereo": [0.15, 0.16], "odometry": [8.4, 8.5]})
+    close = plot_ate_boxplot({"stereo": [0.15, 0.16], "odometry": [0.3, 0.31]})
+    assert imread(io.BytesIO(wide)).ndim == 3 and imread(io.BytesIO(close)).ndim == 3  # both render
