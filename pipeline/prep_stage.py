@@ -111,10 +111,13 @@ def _tasks(seq: Any, raw: DepthCache, stores: Sequence[DepthCache], inpaint: Seq
                     sf.right_bgr if raw_enc is None else None, raw_enc, depth, todo)
 
 
-def _next_result(queue: deque) -> tuple[_Done, tuple[InpaintParams, ...]]:
-    """The oldest frame's result (waiting for it) and the methods its task ran."""
-    item, todo = queue.popleft()
-    return (item.result() if isinstance(item, Future) else item), todo
+def _submit(pool: Any, task: _Task) -> Future:
+    """``task`` on the pool, or done here (serial: no pool) as an already finished future."""
+    if pool is not None:
+        return pool.submit(_prepare_frame, task)
+    done: Future = Future()
+    done.set_result(_prepare_frame(task))
+    return done
 
 
 def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[InpaintParams], cache_root: Path | str,
@@ -172,17 +175,18 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
                     stats["inpaint_s"][p.method] += s
                 stats["frames"] += 1
 
-            queue: deque[tuple[Future | _Done, tuple[InpaintParams, ...]]] = deque()
+            queue: deque[tuple[Future, tuple[InpaintParams, ...]]] = deque()
             seen_before = 0
             for task in _tasks(seq, raw, stores, inpaint, depth, stop, stats):
-                queue.append((pool.submit(_prepare_frame, task) if pool is not None else _prepare_frame(task),
-                              task.inpaint))
-                while len(queue) >= ahead or (pool is None and queue):
-                    store(*_next_result(queue))
+                queue.append((_submit(pool, task), task.inpaint))
+                while len(queue) >= ahead:
+                    fut, todo = queue.popleft()
+                    store(fut.result(), todo)
                 bar.update(stats["frames_seen"] - seen_before)
                 seen_before = stats["frames_seen"]
             while queue:
-                store(*_next_result(queue))
+                fut, todo = queue.popleft()
+                store(fut.result(), todo)
             bar.update(stats["frames_seen"] - seen_before)
         finally:
             if pool is not None:
