@@ -44,14 +44,15 @@ def figure_bytes(fig: Figure, fmt: str = "png") -> bytes:
 LOG_SCALE_RATIO = 20.0
 
 
+def _positive(v: np.ndarray) -> np.ndarray:
+    """The finite, positive values of ``v``, flattened."""
+    v = np.asarray(v, dtype=np.float64).ravel()
+    return v[np.isfinite(v) & (v > 0)]
+
+
 def wants_log_scale(series: Sequence[np.ndarray], ratio: float = LOG_SCALE_RATIO) -> bool:
     """True when the medians of the positive, finite values of the series differ by more than ``ratio``."""
-    medians = []
-    for v in series:
-        v = np.asarray(v, dtype=np.float64).ravel()
-        v = v[np.isfinite(v) & (v > 0)]
-        if v.size:
-            medians.append(float(np.median(v)))
+    medians = [float(np.median(v)) for v in map(_positive, series) if v.size]
     return len(medians) >= 2 and max(medians) > ratio * min(medians)
 
 
@@ -60,9 +61,7 @@ def _log_y(ax, series: Sequence[np.ndarray], label: str) -> None:
     percentile of positive values (errors near 0 at an alignment point would otherwise stretch it)."""
     if not wants_log_scale(series):
         return
-    positive = [np.asarray(v, dtype=np.float64).ravel() for v in series]
-    positive = [v[np.isfinite(v) & (v > 0)] for v in positive]
-    floor = min(float(np.percentile(v, 5)) for v in positive if v.size)
+    floor = min(float(np.percentile(v, 5)) for v in map(_positive, series) if v.size)
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor * 0.8)
     ax.set_ylabel(f"{label} (log scale)")
