@@ -115,7 +115,8 @@ def fmt_pm(s: MetricSummary | None, digits: int = 3) -> str:
         return "–"
     if s.n == 1 or not math.isfinite(s.std):
         return f"{s.mean:.{digits}f}"
-    std_digits = digits if s.std <= 0 else min(6, max(digits, 1 - math.floor(math.log10(s.std))))
+    # a spread that rounds to 0 at 6 decimals (identical runs whose mean is inexact in binary, std ≈ 1e-17) is 0
+    std_digits = digits if s.std < 5e-7 else min(6, max(digits, 1 - math.floor(math.log10(s.std))))
     return f"{s.mean:.{digits}f} ± {s.std:.{std_digits}f}"
 
 

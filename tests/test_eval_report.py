@@ -240,6 +240,9 @@ def test_mean_std_keeps_two_significant_digits_of_a_small_spread():
     assert fmt_pm(tight) == "0.029 ± 0.00011"  # std 1.14e-4 m: not "± 0.000"
     assert fmt_pm(MetricSummary.of([0.60, 0.65, 0.63])) == "0.627 ± 0.025"
     assert fmt_pm(MetricSummary.of([0.5, 0.5])) == "0.500 ± 0.000"
+    same = MetricSummary.of([0.4805, 0.4805, 0.4805, 0.4805, 0.4805])  # identical runs: std is float noise, if any
+    assert fmt_pm(same).endswith("± 0.000")
+    assert fmt_pm(MetricSummary(n=5, mean=0.481, std=1.1e-17, min=0.481, max=0.481, values=(0.481,) * 5)) == "0.481 ± 0.000"
     assert fmt_pm(MetricSummary.of([0.4])) == "0.400"
 
 
