@@ -77,6 +77,18 @@ def _simulated_folder(folder: Path, gt: str | None, camchain: str | None, source
                           sim_dir=folder)
 
 
+def check_source(source: str) -> None:
+    """Raise :class:`AgrivioError` naming ``source`` when it is neither a folder, a bag file (or the stem of
+    byte-split parts) nor a simulator preset; reads and simulates nothing (for checks before any work starts)."""
+    if Path(source).expanduser().is_dir() or _bag_path(source) is not None:
+        return
+    from pipeline.sim.presets import PRESETS
+
+    if source not in PRESETS:
+        raise AgrivioError(f"{source}: neither a bag file (nor byte-split parts {source}.00, …) nor a simulator "
+                           f"preset ({', '.join(sorted(PRESETS))})")
+
+
 def resolve_source(source: str, gt: str | None = None, camchain: str | None = None, duration_s: float | None = None,
                    seed: int = 0, cache_root: Path | None = None, progress: bool = True) -> ResolvedSource:
     """A bag path (with ``gt``/``camchain`` files), a folder written by ``agrivio simulate --out``, or a simulator
@@ -97,11 +109,7 @@ def resolve_source(source: str, gt: str | None = None, camchain: str | None = No
         simulated = _sim_meta(bag.parent) is not None and _sim_meta(bag.parent).get("files", {}).get("bag") == bag.name
         return ResolvedSource(source, name, bag, gt_path, cam, simulated=simulated,
                               sim_dir=bag.parent if simulated else None)
-    from pipeline.sim.presets import PRESETS
-
-    if source not in PRESETS:
-        raise AgrivioError(f"{source}: neither a bag file (nor byte-split parts {source}.00, …) nor a simulator "
-                           f"preset ({', '.join(sorted(PRESETS))})")
+    check_source(source)
     if gt or camchain:
         raise AgrivioError(f"{source}: --gt/--camchain apply to bags; a simulated sequence brings its own")
     from pipeline.sim_source import simulate_cached

@@ -144,3 +144,14 @@ def test_experiment_refuses_bad_options(capsys):
     assert "--runs" in capsys.readouterr().err
     assert main(["experiment", "--presets", "tiny", "--methods", "nope", "--duration", "3"]) == 2
     assert "unknown inpainting method 'nope'" in capsys.readouterr().err
+
+
+def test_experiment_refuses_an_unknown_preset_before_any_work(tmp_path, monkeypatch, capsys):
+    """A misspelt preset is said at once (exit 2, naming it and the presets there are), before a valid one next to it
+    is simulated and before a report of failed runs is written."""
+    monkeypatch.setenv("AGRIVIO_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "exp"
+    assert main(["experiment", "--presets", "tiny,rosario-like-09", "--duration", "3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "rosario-like-09: neither a bag file" in err and "tiny" in err
+    assert not out.exists() and not (tmp_path / "cache" / "sim").exists()

@@ -27,6 +27,7 @@ from pipeline.errors import AgrivioError
 from pipeline.paths import cache_dir
 from pipeline.report_stage import write_comparison_report
 from pipeline.run_sequence import DEFAULT_VARIANTS, SequenceSpec, run_matrix
+from pipeline.sources import check_source
 
 #: Simulated seconds per sequence of each scale (None: the preset's own, full length).
 SCALES: dict[str, float | None] = {"demo": 10.0, "standard": 120.0, "paper": None}
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
     if not presets:
         raise AgrivioError("--presets names no preset")
+    for preset in presets:  # before anything is simulated or run: not 5 × variants failed runs and a report later
+        check_source(preset)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not methods:
         raise AgrivioError("--methods names no inpainting method")
