@@ -61,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="keep the fills open to the far field (disable pipeline.depth_sigma's far-field rule)")
     ap.add_argument("--far-open-radius", type=int, default=None,
                     help="geodesic reach (px) of the far-field rule (default: pipeline.depth_sigma's)")
+    ap.add_argument("--fill-edge-ratio", type=float, default=None,
+                    help="drop fills whose raw neighbourhood spans more than this depth ratio (pipeline.depth_sigma's "
+                         "occlusion-edge rule, off by default), e.g. 1.25")
     ap.add_argument("--track-noise", nargs="*", type=float, default=[],
                     help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
     ap.add_argument("--structure", action="store_true",
@@ -86,12 +89,14 @@ def main(argv: list[str] | None = None) -> int:
         res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,
                                              use_sigma=not args.no_sigma, stereo=not args.no_stereo,
                                              max_frames=args.max_frames,
-                                             far_open_radius_px=0 if args.no_far_open else args.far_open_radius)
+                                             far_open_radius_px=0 if args.no_far_open else args.far_open_radius,
+                                             fill_edge_ratio=args.fill_edge_ratio)
         results[preset] = res
         print(f"\n### {preset} ({len(args.seeds)} seeds, {args.duration:g} s; config {overrides or 'default'}; "
               f"σ to the filter: {'no' if args.no_sigma else 'yes'}; far-field fills: "
               f"{'kept' if args.no_far_open else 'dropped'}"
-              f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'})")
+              f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'}"
+              f"{'' if args.fill_edge_ratio is None else f'; occlusion-edge rule, ratio {args.fill_edge_ratio:g}'})")
         print("\n".join(rung_table(res, args.seeds)))
         tri = np.mean([v["triangulated"] for v in extra[preset]["truth"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "

@@ -106,6 +106,27 @@ def test_fills_open_to_the_far_field_carry_no_depth():
     assert model.filled(inpainted, all_valid, near, raw_valid, "m")[0].all()
 
 
+def test_fills_at_an_occlusion_edge_carry_no_depth_when_the_rule_is_on():
+    # a 2 m plant in front of 5 m soil; SGBM's occlusion hole between them, and a hole inside the flat soil
+    model = DepthSigmaModel(fx_baseline=40.0, disparity_sigma_px=0.5, fill={"m": (0.1, 0.0, 0.5)},
+                            far_open_sigmas=0.0, edge_ratio=1.25, edge_radius_px=3)
+    raw = np.full((20, 40), 5.0, np.float32)
+    raw[:, :12] = 2.0
+    raw_valid = np.ones(raw.shape, bool)
+    raw_valid[:, 12:15] = False                                        # the occlusion hole right of the plant
+    raw_valid[8:12, 28:32] = False                                     # a hole in flat soil
+    inpainted = np.where(raw_valid, raw, 4.0).astype(np.float32)
+    all_valid = np.ones(raw.shape, bool)
+    valid, sigma = model.filled(inpainted, all_valid, raw, raw_valid, "m")
+    assert not valid[:, 12:15].any() and np.isnan(sigma[:, 12:15]).all()  # 2 m and 5 m within 3 px: ratio 2.5
+    assert valid[8:12, 28:32].all()                                    # only 5 m around it: kept
+    assert valid[raw_valid].all()                                      # measured pixels are never dropped
+    assert dataclasses.replace(model, edge_ratio=0.0).filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
+    assert dataclasses.replace(model, edge_ratio=3.0).filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
+    lone = np.zeros(raw.shape, bool)                                   # no measured pixel near: nothing to compare
+    assert dataclasses.replace(model, edge_radius_px=1).occlusion_edge(raw, lone).sum() == 0
+
+
 def test_fill_model_fit_recovers_a_known_growth():
     rng = np.random.default_rng(0)
     dist = rng.uniform(0, 60, 200_000)
