@@ -78,7 +78,11 @@ FAR_OPEN_RADIUS_PX = 63
 #: one of them. Measured (stop 38, oracle back end, first 240 s of 450 s rosario-like-03, seeds 0 / 1): r = 15 px and
 #: ratio 1.25 flag 73 % of the `paper` fills that feed tracks that are not consistent 3-D points and 45 % of those on
 #: tracks that are; `paper` ATE 0.498 / 0.619 → 0.529 / 0.294 m, NEES of position 5.9 / 5.4 → 2.7 / 2.8, and its
-#: heading drift on the third row pass (−4.7 / −3.9° over 184–232 s) → −1.0 / −2.8° (r = 7 px: no gain).
+#: heading drift on the third row pass (−4.7 / −3.9° over 184–232 s) → −1.0 / −2.8° (r = 7 px: no gain). At 120 s
+#: (``bench_depth_oracle.py --duration 120 --seeds 0 1 --fill-edge-ratio 1.25``) it makes `paper` consistent on every
+#: preset (NEES of position / orientation 01 7.5 / 7.7 → 2.8 / 2.0, 02 2.4 / 7.9 → 0.9 / 2.4, 03 8.0 / 3.5 → 2.2 / 1.3)
+#: but its ATE moves 0.120 → 0.114 (01), 0.185 → 0.118 (02, below depth-raw's 0.137) and 0.185 → 0.280 m (03, worse):
+#: hence off by default.
 EDGE_RADIUS_PX = 15
 
 
