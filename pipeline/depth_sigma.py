@@ -82,7 +82,8 @@ FAR_OPEN_RADIUS_PX = 63
 #: (``bench_depth_oracle.py --duration 120 --seeds 0 1 --fill-edge-ratio 1.25``) it makes `paper` consistent on every
 #: preset (NEES of position / orientation 01 7.5 / 7.7 → 2.8 / 2.0, 02 2.4 / 7.9 → 0.9 / 2.4, 03 8.0 / 3.5 → 2.2 / 1.3)
 #: but its ATE moves 0.120 → 0.114 (01), 0.185 → 0.118 (02, below depth-raw's 0.137) and 0.185 → 0.280 m (03, worse):
-#: hence off by default.
+#: hence off by default. Ratios 1.5 / 2.0 give 0.179 / 0.111 (01), 0.197 / 0.177 (02), 0.195 / 0.222 m (03): not
+#: monotone in the threshold (two seeds; the 120 s ATE reacts chaotically to which features carry depth).
 EDGE_RADIUS_PX = 15
 
 
