@@ -77,6 +77,11 @@ def main(argv: list[str] | None = None) -> int:
     config = default_config(overrides)
     results: dict[str, dict] = {}
     extra: dict[str, dict] = {}
+    sigma_overrides: dict[str, float | int] = {}
+    if args.no_far_open or args.far_open_radius is not None:
+        sigma_overrides["far_open_radius_px"] = 0 if args.no_far_open else args.far_open_radius
+    if args.fill_edge_ratio is not None:
+        sigma_overrides["edge_ratio"] = args.fill_edge_ratio
     t0 = time.perf_counter()
     for p in args.presets:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
@@ -88,9 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             rungs = [r for r in rungs if r.name in args.only_rungs]
         res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,
                                              use_sigma=not args.no_sigma, stereo=not args.no_stereo,
-                                             max_frames=args.max_frames,
-                                             far_open_radius_px=0 if args.no_far_open else args.far_open_radius,
-                                             fill_edge_ratio=args.fill_edge_ratio)
+                                             max_frames=args.max_frames, sigma_overrides=sigma_overrides)
         results[preset] = res
         print(f"\n### {preset} ({len(args.seeds)} seeds, {args.duration:g} s; config {overrides or 'default'}; "
               f"σ to the filter: {'no' if args.no_sigma else 'yes'}; far-field fills: "

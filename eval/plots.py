@@ -50,18 +50,28 @@ def _positive(v: np.ndarray) -> np.ndarray:
     return v[np.isfinite(v) & (v > 0)]
 
 
+def _positive_series(series: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """:func:`_positive` of each series, the empty ones left out."""
+    return [p for p in map(_positive, series) if p.size]
+
+
+def _medians_differ(positive: Sequence[np.ndarray], ratio: float) -> bool:
+    medians = [float(np.median(v)) for v in positive]
+    return len(medians) >= 2 and max(medians) > ratio * min(medians)
+
+
 def wants_log_scale(series: Sequence[np.ndarray], ratio: float = LOG_SCALE_RATIO) -> bool:
     """True when the medians of the positive, finite values of the series differ by more than ``ratio``."""
-    medians = [float(np.median(v)) for v in map(_positive, series) if v.size]
-    return len(medians) >= 2 and max(medians) > ratio * min(medians)
+    return _medians_differ(_positive_series(series), ratio)
 
 
 def _log_y(ax, series: Sequence[np.ndarray], label: str) -> None:
     """A logarithmic y axis (labelled so) when :func:`wants_log_scale`; its bottom at the smallest series' 5th
     percentile of positive values (errors near 0 at an alignment point would otherwise stretch it)."""
-    if not wants_log_scale(series):
+    positive = _positive_series(series)
+    if not _medians_differ(positive, LOG_SCALE_RATIO):
         return
-    floor = min(float(np.percentile(v, 5)) for v in map(_positive, series) if v.size)
+    floor = min(float(np.percentile(v, 5)) for v in positive)
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor * 0.8)
     ax.set_ylabel(f"{label} (log scale)")

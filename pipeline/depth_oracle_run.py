@@ -7,7 +7,7 @@ floor), with the pipeline's alignment (SE(3), 20 ms, estimate at the antenna).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -39,14 +39,13 @@ __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference",
 
 def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                    seeds: Iterable[int], max_frames: int | None = None,
-                   sigma_model: DepthSigmaModel | None = None,
-                   far_open_radius_px: int | None = None, fill_edge_ratio: float | None = None) -> dict[str, Any]:
+                   sigma_overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
 
     Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
-    reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`); ``far_open_radius_px``
-    replaces the far-field rule's geodesic reach (px) for the ablations: 0 turns the rule off (every fill kept);
-    ``fill_edge_ratio`` > 0 turns on the occlusion-edge rule (:meth:`DepthSigmaModel.occlusion_edge`) with that ratio.
+    reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`). ``sigma_overrides``:
+    fields of the rig's :class:`DepthSigmaModel` replaced for the ablations, e.g. ``{"far_open_radius_px": 0}`` (the
+    far-field rule off: every fill kept) or ``{"edge_ratio": 1.25}`` (the occlusion-edge rule on).
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
@@ -59,11 +58,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
             pass
     raw = DepthCache(cache_root, seq.identity(), DepthParams())
     inp = {m: DepthCache(cache_root, seq.identity(), InpaintParams(method=m)) for m in methods}
-    model = sigma_model or DepthSigmaModel.for_rig(rig)
-    if far_open_radius_px is not None:
-        model = replace(model, far_open_radius_px=int(far_open_radius_px))
-    if fill_edge_ratio is not None:
-        model = replace(model, edge_ratio=float(fill_edge_ratio))
+    model = replace(DepthSigmaModel.for_rig(rig), **(sigma_overrides or {}))
 
     def raw_provider(i: int):
         f = raw.get(i)

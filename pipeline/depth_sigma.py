@@ -188,10 +188,12 @@ class DepthSigmaModel:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * self.edge_radius_px + 1,) * 2)
         valid = _bool(raw_valid)
         z = _f32(raw_depth_m)
-        far = np.float32(np.finfo(np.float32).max)
+        # no measured pixel in the window: max 0, min +inf (or OpenCV's border value FLT_MAX, whose product with the
+        # ratio overflows to +inf, harmlessly), so the ratio test is False there
         z_max = cv2.dilate(np.where(valid, z, np.float32(0)), kernel)
-        z_min = cv2.erode(np.where(valid, z, far), kernel)
-        return ~valid & (z_min < far) & (z_max > np.float32(self.edge_ratio) * z_min)
+        z_min = cv2.erode(np.where(valid, z, np.float32(np.inf)), kernel)
+        with np.errstate(over="ignore"):
+            return ~valid & (z_max > np.float32(self.edge_ratio) * z_min)
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:

@@ -163,12 +163,11 @@ class LadderResult:
 def sequence_ladder(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                     seeds: Sequence[int], *, rungs: list[Rung] | None = None, use_sigma: bool = True,
                     stereo: bool = True, max_frames: int | None = None,
-                    far_open_radius_px: int | None = None, fill_edge_ratio: float | None = None
+                    sigma_overrides: Mapping[str, Any] | None = None
                     ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
     """The ladder of one simulated sequence folder: (rung → stats, extra). ``rungs`` default to
     :func:`standard_rungs` of ``methods``; ``stereo`` adds the stereo front end on the same seeds."""
-    prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames,
-                          far_open_radius_px=far_open_radius_px, fill_edge_ratio=fill_edge_ratio)
+    prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames, sigma_overrides=sigma_overrides)
     res = run_ladder(prep, config, rungs=rungs or standard_rungs(methods), use_sigma=use_sigma)
     if stereo:
         res["stereo"] = stereo_reference(sim_dir, config, seeds, prep, max_frames)

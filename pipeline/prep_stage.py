@@ -164,7 +164,12 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
         try:
             ahead = 2 * n_workers + 2  # frames in flight: enough to keep every worker busy, a few MB each
 
-            def store(done: _Done, task_inpaint: tuple[InpaintParams, ...]) -> None:
+            queue: deque[tuple[Future, tuple[InpaintParams, ...]]] = deque()
+
+            def store_oldest() -> None:
+                """Wait for the oldest frame in flight and store its results (frame order)."""
+                fut, task_inpaint = queue.popleft()
+                done: _Done = fut.result()
                 if done.raw is not None:
                     raw.put_encoded(done.raw)
                     stats["depth_computed"] += 1
@@ -175,18 +180,15 @@ def prepare_depth_caches(seq: Any, depth: DepthParams, inpaint: Sequence[Inpaint
                     stats["inpaint_s"][p.method] += s
                 stats["frames"] += 1
 
-            queue: deque[tuple[Future, tuple[InpaintParams, ...]]] = deque()
             seen_before = 0
             for task in _tasks(seq, raw, stores, inpaint, depth, stop, stats):
                 queue.append((_submit(pool, task), task.inpaint))
                 while len(queue) >= ahead:
-                    fut, todo = queue.popleft()
-                    store(fut.result(), todo)
+                    store_oldest()
                 bar.update(stats["frames_seen"] - seen_before)
                 seen_before = stats["frames_seen"]
             while queue:
-                fut, todo = queue.popleft()
-                store(fut.result(), todo)
+                store_oldest()
             bar.update(stats["frames_seen"] - seen_before)
         finally:
             if pool is not None:

@@ -80,8 +80,12 @@ def _simulated_folder(folder: Path, gt: str | None, camchain: str | None, source
 def check_source(source: str) -> None:
     """Raise :class:`AgrivioError` naming ``source`` when it is neither a folder, a bag file (or the stem of
     byte-split parts) nor a simulator preset; reads and simulates nothing (for checks before any work starts)."""
-    if Path(source).expanduser().is_dir() or _bag_path(source) is not None:
-        return
+    if not Path(source).expanduser().is_dir() and _bag_path(source) is None:
+        _require_preset(source)
+
+
+def _require_preset(source: str) -> None:
+    """Raise :class:`AgrivioError` unless ``source`` names a simulator preset (the last thing a source can be)."""
     from pipeline.sim.presets import PRESETS
 
     if source not in PRESETS:
@@ -109,7 +113,7 @@ def resolve_source(source: str, gt: str | None = None, camchain: str | None = No
         simulated = _sim_meta(bag.parent) is not None and _sim_meta(bag.parent).get("files", {}).get("bag") == bag.name
         return ResolvedSource(source, name, bag, gt_path, cam, simulated=simulated,
                               sim_dir=bag.parent if simulated else None)
-    check_source(source)
+    _require_preset(source)
     if gt or camchain:
         raise AgrivioError(f"{source}: --gt/--camchain apply to bags; a simulated sequence brings its own")
     from pipeline.sim_source import simulate_cached
