@@ -23,12 +23,12 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from msckf.config import load_config  # noqa: E402
-from msckf.init import NonStaticStartError  # noqa: E402
 from msckf.vio import Msckf  # noqa: E402
 from pipeline.atomic import write_json_atomic  # noqa: E402
 from pipeline.bag_reader import RosarioSequence  # noqa: E402
 from pipeline.depth import to_grey  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
+from pipeline.run_job import feed_imu_until  # noqa: E402
 from pipeline.sim.sequence import SimulatedSequence  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
 
@@ -48,12 +48,7 @@ def match_errors(sim: SimulatedSequence, flat_rel: float = 0.03) -> np.ndarray:
     k = 0
     for fr in seq.stereo_frames():
         t = fr.stamp_ns / 1e9
-        while k < len(imu) and imu[k, 0] <= t:
-            try:
-                vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
-            except NonStaticStartError:
-                pass
-            k += 1
+        k = feed_imu_until(vio, imu, k, t)
         vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
         dbg = vio.frontend.last_debug
         if dbg is None or not len(dbg.ids):

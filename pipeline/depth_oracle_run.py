@@ -31,7 +31,7 @@ from pipeline.depth_oracle import (
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
 from pipeline.oracle_truth import TrueImuPoses
-from pipeline.run_job import lever_arms_from_tf
+from pipeline.run_job import feed_imu_until, lever_arms_from_tf
 from pipeline.sim.sequence import SimulatedSequence
 
 __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference", "default_config"]
@@ -203,7 +203,6 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs)."""
     from eval.trajectory import Trajectory
     from msckf.errors import FilterDivergedError
-    from msckf.init import NonStaticStartError
     from msckf.vio import Msckf
 
     sim = SimulatedSequence(Path(sim_dir))
@@ -223,12 +222,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
         try:
             for fr in seq.stereo_frames(stop_index=max_frames):
                 t = fr.stamp_ns / 1e9
-                while k < len(imu) and imu[k, 0] <= t:
-                    try:
-                        vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
-                    except NonStaticStartError:  # keep feeding until a still start, as a run does
-                        pass
-                    k += 1
+                k = feed_imu_until(vio, imu, k, t)  # keeps feeding until a still start, as a run does
                 pose = vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
                 if vio.last_stats is not None:
                     gammas.append(vio.last_stats.gamma_per_dof())

@@ -202,6 +202,21 @@ def imu_samples_through(imu_stamps_ns: np.ndarray, frame_stamp_ns: int, start: i
     return max(int(np.searchsorted(imu_stamps_ns, np.int64(frame_stamp_ns), side="right")), start)
 
 
+def feed_imu_until(vio: Msckf, imu: np.ndarray, start: int, t_s: float) -> int:
+    """Feed ``vio`` the rows of ``imu`` ((M, 7) ``[t_s, gyro rad/s, accel m/s²]``, IMU frame) from ``start`` whose
+    time is ≤ ``t_s`` (seconds); returns the index of the first row not fed. A :class:`NonStaticStartError` (the
+    filter waits for a still start; the sample has reached the front end) is passed over — for the oracle and the
+    benchmarks, which feed float-second arrays; a run uses :func:`imu_samples_through` and reports the error."""
+    k = start
+    while k < len(imu) and imu[k, 0] <= t_s:
+        try:
+            vio.add_imu(imu[k, 0], imu[k, 1:4], imu[k, 4:7])
+        except NonStaticStartError:
+            pass
+        k += 1
+    return k
+
+
 def _run_odometry(plan: RunPlan, seq: RosarioSequence) -> Trajectory:
     R = np.asarray(plan.R_base_imu) if plan.R_base_imu is not None else None
     odom = seq.odom_array()
