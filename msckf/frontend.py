@@ -604,7 +604,7 @@ class DepthFrontend(_TrackerBase):
         t = time.perf_counter()
         rect = self.rig.rectify_left_normalised(tracks.xy0)
         z_rect, reject = sample_depth(depth_m, depth_valid, rect, c.depth_sampling, c.depth_edge_window,
-                                      c.depth_edge_threshold, c.min_depth_m, c.max_depth_m)
+                                      c.depth_edge_threshold, c.min_depth_m, c.max_depth_m, c.patch_size)
         z0, xy1 = depth_to_stereo(tracks.xy0, z_rect, self.rig.R_left, self.rig.T_right_left)
         behind = np.isfinite(z_rect) & ~np.isfinite(z0)
         reject[behind] = DepthReject.BEHIND

@@ -59,8 +59,9 @@ class FrontendConfig:
         stereo_min_depth_m: a stereo match must triangulate in front of both cameras, at Z >= this (metres).
 
     Depth-map front end (variants ``depth-raw`` / ``depth-inpainted``):
-        depth_sampling: ``"bilinear"`` (the four neighbours of the rectified pixel must all be valid) or
-            ``"nearest"``.
+        depth_sampling: ``"bilinear"`` (the four neighbours of the rectified pixel must all be valid),
+            ``"nearest"``, or ``"patch"`` (accepted as ``"bilinear"``, valued as ``1 / mean(1 / Z)`` over the KLT
+            window ``patch_size``: :func:`msckf.frontend_depth.sample_depth`).
         depth_edge_window: odd side, pixels, of the window around the rectified pixel tested for a depth edge.
         depth_edge_threshold: the pixel is on a depth edge (→ no depth) when
             ``(max - min) / depth > depth_edge_threshold`` over the valid depths of the window (dimensionless).
@@ -138,8 +139,8 @@ class FrontendConfig:
             raise bad("ransac_min_inlier_fraction", "must be in [0, 1]")
         if self.max_depth_m <= self.min_depth_m:
             raise bad("max_depth_m", f"must be > min_depth_m ({self.min_depth_m})")
-        if self.depth_sampling not in ("bilinear", "nearest"):
-            raise bad("depth_sampling", "must be 'bilinear' or 'nearest'")
+        if self.depth_sampling not in ("bilinear", "nearest", "patch"):
+            raise bad("depth_sampling", "must be 'bilinear', 'nearest' or 'patch'")
 
     @property
     def ransac_iterations(self) -> int:

@@ -122,7 +122,7 @@ def record_tracks(rig: Any, config: MsckfConfig, seed: int, imu: np.ndarray,
                           obs.track_length.copy(), rect)
         for name, (dm, vm, sm) in [("raw", (d, v, s))] + [(n, p(index)) for n, p in other_maps.items()]:
             z, _ = sample_depth(dm, vm, rect, c.depth_sampling, c.depth_edge_window, c.depth_edge_threshold,
-                                c.min_depth_m, c.max_depth_m)
+                                c.min_depth_m, c.max_depth_m, c.patch_size)
             tf.z_rect[name] = z
             if sm is not None:
                 tf.sigma_rect[name] = nearest_pixel_values(sm, rect)

@@ -465,6 +465,33 @@ def test_invalid_edge_and_out_of_range_depth_give_no_depth():
     assert z[0] == pytest.approx(ramp[5, 10])
 
 
+def test_patch_depth_sampling_is_the_inverse_mean_depth_of_the_klt_window():
+    """``"patch"``: accepted and rejected exactly as ``"bilinear"``; valued ``1 / mean(1 / Z)`` over the valid
+    pixels of the KLT window around the rounded pixel — on a plane (1/Z affine in the pixel coordinates) that is
+    the plane's depth at the window centre, next to a step it is pulled towards the other side."""
+    h, w = 60, 80
+    vv, uu = np.mgrid[0:h, 0:w]
+    inv = (0.4 + 0.002 * uu + 0.001 * vv).astype(np.float64)               # a slanted plane: 1/Z affine
+    plane = (1.0 / inv).astype(np.float32)
+    valid = np.ones((h, w), bool)
+    valid[20:23, 30:33] = False                                              # a few holes inside one window
+    px = np.array([[40.3, 30.0], [31.0, 24.0], [2.0, 2.0], [31.0, 21.0]])
+    zb, why_b = sample_depth(plane, valid, px, "bilinear", 5, 0.15, 0.3, 20.0)
+    zp, why_p = sample_depth(plane, valid, px, "patch", 5, 0.15, 0.3, 20.0, patch_size=15)
+    assert np.array_equal(why_b, why_p) and np.array_equal(np.isnan(zb), np.isnan(zp))
+    assert zp[0] == pytest.approx(plane[30, 40], rel=1e-6)                  # full window: the centre pixel's depth
+    mask = valid[17:32, 24:39]                                               # window of (31, 24), holes skipped
+    assert zp[1] == pytest.approx(1.0 / np.mean(1.0 / plane[17:32, 24:39].astype(np.float64)[mask]), rel=1e-6)
+    assert np.isnan(zp[3]) and why_p[3] == DepthReject.INVALID              # a hole at the centre: no depth
+    step = np.full((h, w), 2.0, np.float32)
+    step[:, 45:] = 2.2                                                       # 10 % step: below the edge threshold
+    z_near, _ = sample_depth(step, np.ones((h, w), bool), np.array([[42.0, 30.0]]), "patch", 5, 0.15, 0.3, 20.0,
+                             patch_size=15)
+    assert 2.0 < z_near[0] < 2.2                                             # the far side is in the window
+    with pytest.raises(ValueError, match="patch_size"):
+        sample_depth(plane, valid, px, "patch", 5, 0.15, 0.3, 20.0)
+
+
 def test_depth_frontend_marks_features_on_holes_and_edges_as_mono(wall_seq):
     rig = wall_seq.rig
     d = np.nan_to_num(wall_seq.depth[0])
