@@ -545,8 +545,11 @@ class MsckfFilter:
         else:
             nmax = max(b.Hx.shape[1] for b in accepted)
             padded = [self._pad_batch(b, nmax, n_cl) for b in accepted]
-            merged = FeatureBatch(*(np.concatenate([getattr(b, f) for b in padded])
-                                    for f in ("pos", "Hx", "Hf", "r", "rows")))
+            mixed = any(b.mix is not None for b in padded)
+            pos, Hx, Hf, r, rows = (np.concatenate([getattr(b, f) for b in padded])
+                                    for f in ("pos", "Hx", "Hf", "r", "rows"))
+            merged = FeatureBatch(pos, Hx, Hf, r, rows,
+                                  np.concatenate([b.mix_or_identity() for b in padded]) if mixed else None)
             dx, P_new = qr_update(self.P, merged, sigma, n_cl)
         self.P = P_new
         inject_correction(self._initialised(), self.clones, dx)
@@ -601,11 +604,17 @@ class MsckfFilter:
         if m == n:
             return b
         pad = n - m
+        mix = None
+        if b.mix is not None:
+            R = b.r.shape[2]
+            mix = np.pad(b.mix, ((0, 0), (0, pad * R), (0, pad * R)))   # the padding rows come last
+            tail = np.arange(m * R, n * R)
+            mix[:, tail, tail] = 1.0
         return FeatureBatch(np.pad(b.pos, ((0, 0), (0, pad)), constant_values=dummy),
                             np.pad(b.Hx, ((0, 0), (0, pad), (0, 0), (0, 0))),
                             np.pad(b.Hf, ((0, 0), (0, pad), (0, 0), (0, 0))),
                             np.pad(b.r, ((0, 0), (0, pad), (0, 0))),
-                            np.pad(b.rows, ((0, 0), (0, pad), (0, 0))))
+                            np.pad(b.rows, ((0, 0), (0, pad), (0, 0))), mix)
 
     def _remove_lost_features(self, cur_slot: int, st: FrameStats) -> None:
         fs = self.features

@@ -116,6 +116,13 @@ class FeatureBatch:
         Hx: (k, n, R, 6) Jacobian w.r.t. [δθ_c, δp_c] of that clone; Hf: (k, n, R, 3) w.r.t. the feature;
         r: (k, n, R) residual z − h; rows: (k, n, R) valid-row mask (rows 0-1 cam0, 2-3 cam1, 4 depth);
         R = 5 with depth rows enabled, else 4.
+        mix: None, or (k, n·R, n·R) the linear combination of a feature's rows (flattened observation-major,
+            ``index = observation · R + row``) that whitening for correlated errors applied
+            (:func:`whiten_track_drift`, :func:`whiten_depth_shared`). ``r`` and ``Hf`` hold the combined rows;
+            ``Hx`` keeps each observation's own Jacobian w.r.t. *its* clone, because a combination of rows of
+            different clones depends on all of those clones' states and cannot be stored per observation: the
+            consumers (:func:`null_space_project_active`, :func:`gating_chi2`, :func:`schur_information`)
+            apply ``mix`` to the rows once they are laid out on the clones' columns.
     """
 
     pos: np.ndarray
@@ -123,6 +130,7 @@ class FeatureBatch:
     Hf: np.ndarray
     r: np.ndarray
     rows: np.ndarray
+    mix: np.ndarray | None = None
 
     @property
     def n_rows(self) -> np.ndarray:
@@ -130,7 +138,20 @@ class FeatureBatch:
         return self.rows.sum(axis=(1, 2))
 
     def subset(self, sel: np.ndarray) -> FeatureBatch:
-        return FeatureBatch(self.pos[sel], self.Hx[sel], self.Hf[sel], self.r[sel], self.rows[sel])
+        return FeatureBatch(self.pos[sel], self.Hx[sel], self.Hf[sel], self.r[sel], self.rows[sel],
+                            None if self.mix is None else self.mix[sel])
+
+    def mix_or_identity(self) -> np.ndarray:
+        """(k, n·R, n·R) ``mix``, the identity where there is none."""
+        k, n, R = self.r.shape
+        if self.mix is not None:
+            return self.mix
+        return np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
+
+
+def _compose_mix(batch: FeatureBatch, T: np.ndarray) -> np.ndarray:
+    """``T @ batch.mix`` (T: (k, n·R, n·R)), ``T`` alone where the batch has no mix yet."""
+    return T if batch.mix is None else T @ batch.mix
 
 
 def bucket_by_length(n_obs: np.ndarray, edges: tuple[int, ...] = (8,)) -> list[np.ndarray]:
@@ -276,6 +297,8 @@ def gating_chi2(P: np.ndarray, batch: FeatureBatch, sigma: float, pixel_sigma: f
     Pg = _gather_P_blocks(P, batch.pos)                                   # (k, n, n, 6, 6)
     HP = batch.Hx[:, :, None] @ Pg                                        # (k, n, n, R, 6)
     S = (HP @ np.swapaxes(batch.Hx, -1, -2)[:, None]).transpose(0, 1, 3, 2, 4).reshape(k, n * R, n * R)
+    if batch.mix is not None:
+        S = batch.mix @ S @ np.swapaxes(batch.mix, 1, 2)                  # the combined rows' H P Hᵀ
     var = np.full(R, sigma * sigma)
     if pixel_sigma is not None:
         var[:min(R, 4)] = pixel_sigma * pixel_sigma
@@ -348,7 +371,8 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
     t0 = np.min(t, axis=1, keepdims=True)
     t = np.where(valid, times_s - np.where(np.isfinite(t0), t0, 0.0), 0.0)
     ratio = drift_psd / (sigma * sigma)
-    r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
+    r, Hf = batch.r.copy(), batch.Hf.copy()
+    T = np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
     for left, right in ((0, 2), (1, 3)):
         cols = [c for c in (left, right) if c < R]
         ok = np.concatenate([batch.rows[:, :, c] & valid for c in cols], axis=1)      # (k, m·n)
@@ -357,17 +381,17 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
         tt = np.tile(t, (1, len(cols)))                                                 # (k, m·n)
         both = ok[:, :, None] & ok[:, None, :]
         C = np.where(both, ratio * np.minimum(tt[:, :, None], tt[:, None, :]), 0.0) + np.eye(len(cols) * n)
-        L = np.linalg.cholesky(C)
+        Li = np.linalg.inv(np.linalg.cholesky(C))                                       # (k, m·n, m·n)
         rr = np.concatenate([batch.r[:, :, c] for c in cols], axis=1)
-        hx = np.concatenate([batch.Hx[:, :, c] for c in cols], axis=1)
         hf = np.concatenate([batch.Hf[:, :, c] for c in cols], axis=1)
-        rw = np.linalg.solve(L, rr[..., None])[..., 0]
-        hxw, hfw = np.linalg.solve(L, hx), np.linalg.solve(L, hf)
+        rw = (Li @ rr[..., None])[..., 0]
+        hfw = Li @ hf
+        flat = np.concatenate([np.arange(n) * R + c for c in cols])                     # their flat row indices
+        T[:, flat[:, None], flat[None, :]] = Li
         for j, c in enumerate(cols):
             r[:, :, c] = rw[:, j * n:(j + 1) * n]
-            Hx[:, :, c] = hxw[:, j * n:(j + 1) * n]
             Hf[:, :, c] = hfw[:, j * n:(j + 1) * n]
-    return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
+    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, T))
 
 
 def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
@@ -410,13 +434,15 @@ def whiten_depth_shared(batch: FeatureBatch, shared: np.ndarray) -> FeatureBatch
     A = np.where(ok[..., None], A[..., None] if A.ndim == 2 else A, 0.0)               # (k, n, m)
     if not np.any(A > 0.0):
         return batch
-    n = ok.shape[1]
-    L = np.linalg.cholesky(A @ np.swapaxes(A, 1, 2) + np.eye(n))
-    r, Hx, Hf = batch.r.copy(), batch.Hx.copy(), batch.Hf.copy()
-    r[:, :, 4] = np.linalg.solve(L, batch.r[:, :, 4][..., None])[..., 0]
-    Hx[:, :, 4] = np.linalg.solve(L, batch.Hx[:, :, 4])
-    Hf[:, :, 4] = np.linalg.solve(L, batch.Hf[:, :, 4])
-    return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows)
+    k, n, R = batch.r.shape
+    Li = np.linalg.inv(np.linalg.cholesky(A @ np.swapaxes(A, 1, 2) + np.eye(n)))       # (k, n, n)
+    r, Hf = batch.r.copy(), batch.Hf.copy()
+    r[:, :, 4] = (Li @ batch.r[:, :, 4][..., None])[..., 0]
+    Hf[:, :, 4] = Li @ batch.Hf[:, :, 4]
+    T = np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
+    flat = np.arange(n) * R + 4
+    T[:, flat[:, None], flat[None, :]] = Li
+    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, T))
 
 
 def downweight_features(batch: FeatureBatch, gamma_per_dof: np.ndarray, k: float) -> FeatureBatch:
@@ -424,7 +450,7 @@ def downweight_features(batch: FeatureBatch, gamma_per_dof: np.ndarray, k: float
     ``w = sqrt(k / (γ/dof))`` (its σ by 1/w); the others are unchanged. gamma_per_dof: (k_features,)."""
     w = 1.0 / np.sqrt(np.maximum(np.asarray(gamma_per_dof, dtype=np.float64) / k, 1.0))
     return FeatureBatch(batch.pos, batch.Hx * w[:, None, None, None], batch.Hf * w[:, None, None, None],
-                        batch.r * w[:, None, None], batch.rows)
+                        batch.r * w[:, None, None], batch.rows, batch.mix)
 
 
 def schur_information(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -442,6 +468,15 @@ def schur_information(batch: FeatureBatch, n_clones: int) -> tuple[np.ndarray, n
     ok &= np.linalg.det(np.where(ok[:, None, None], Cf, np.eye(3))) > 1e-300
     Lam = np.zeros((6 * n_clones, 6 * n_clones))
     eta = np.zeros(6 * n_clones)
+    if batch.mix is not None:
+        # rows combined across clones (whitening): the per-pair blocks below do not apply; the null-space
+        # projection gives the same information (H_o spans the complement of H_f in the whitened rows)
+        H_o, r_o, active_o = null_space_project_active(batch.subset(ok), n_clones)
+        if len(r_o):
+            idx = _block_columns(active_o)
+            Lam[np.ix_(idx, idx)] = H_o.T @ H_o
+            eta[idx] = H_o.T @ r_o
+        return Lam, eta, ok
     if not np.all(ok):
         Hx, Hf, HfT, r, pos, Cf = Hx[ok], Hf[ok], HfT[ok], r[ok], pos[ok], Cf[ok]
         k = int(ok.sum())
@@ -567,6 +602,15 @@ def null_space_project_active(batch: FeatureBatch, n_clones: int) -> tuple[np.nd
     M[ff, dest, :3] = batch.Hf[use].reshape(k, m, 3)[ff, rr]
     M[ff[:, None], dest[:, None], 3 + 6 * clone[:, None] + np.arange(6)] = batch.Hx[use].reshape(k, m, 6)[ff, rr]
     M[ff, dest, -1] = batch.r[use].reshape(k, m)[ff, rr]
+    if batch.mix is not None:
+        # the whitening's row combinations, now that each row's H_x sits on its own clone's columns (r and H_f are
+        # combined already): the mix restricted to the valid rows, in the same order
+        order = np.argsort(~rows, axis=1, kind="stable")[:, :m_used]     # flat indices of the valid rows first
+        mv = np.take_along_axis(np.take_along_axis(batch.mix[use], order[:, :, None], axis=1), order[:, None, :],
+                                axis=2)
+        vmask = np.arange(m_used)[None, :] < n_valid[:, None]
+        mv = np.where(vmask[:, :, None] & vmask[:, None, :], mv, 0.0)
+        M[:, :, 3:3 + ncol] = mv @ M[:, :, 3:3 + ncol]
     m = m_used
     for j in range(3):  # Householder QR of H_f, applied to the whole row block
         x = M[:, j:, j]

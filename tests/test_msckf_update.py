@@ -518,3 +518,82 @@ def test_depth_sigma_at_prediction_makes_a_relative_sigma_independent_of_the_rea
     b0 = measurement_blocks(spec, *args, depth_sigma=0.1 * depth)
     b1 = measurement_blocks(on, *args, depth_sigma=0.1 * depth)
     assert np.array_equal(b0.r[..., :4], b1.r[..., :4]) and not np.allclose(b0.r[..., 4], b1.r[..., 4])
+
+
+def _explicit_feature_rows(b, f, n_clones, cov_extra):
+    """Feature f's valid rows laid out on the full clone state: (H (m, 6C), H_f (m, 3), r (m,), C (m, m)), C the
+    rows' covariance in units of σ² (I + ``cov_extra(f, i, j, i2, j2)``)."""
+    k, n, R = b.r.shape
+    idx = [(i, j) for i in range(n) for j in range(R) if b.rows[f, i, j]]
+    H = np.zeros((len(idx), 6 * n_clones))
+    Hf = np.zeros((len(idx), 3))
+    r = np.zeros(len(idx))
+    C = np.eye(len(idx))
+    for a, (i, j) in enumerate(idx):
+        H[a, 6 * b.pos[f, i]:6 * b.pos[f, i] + 6] = b.Hx[f, i, j]
+        Hf[a], r[a] = b.Hf[f, i, j], b.r[f, i, j]
+        for c, (i2, j2) in enumerate(idx):
+            C[a, c] += cov_extra(f, i, j, i2, j2)
+    return H, Hf, r, C
+
+
+def test_whitening_across_clones_keeps_each_jacobian_on_its_own_clone():
+    """Whitening a feature's depth rows for a shared error combines rows of *different* clones. The update's
+    information and the gate's χ² must then equal the explicit forms with each row's Jacobian on its own clone's
+    columns and the rows' full covariance — until stop 40 the combined Jacobian was stored on each observation's
+    own clone (information off by 2.5 on a scale of 20 here; on a consistent simulated world a 0.5 % shared term
+    on 0.2 % depths raised the ANEES of position from 5.2 to 14.5)."""
+    from msckf.update import FeatureBatch, null_space_project, schur_information, whiten_depth_shared
+
+    rng = np.random.default_rng(0)
+    k, n, R, C = 3, 4, 5, 5
+    rows = np.ones((k, n, R), bool)
+    rows[:, :, 2:4] = False
+    rows[2, 3] = False
+    pos = np.tile(np.arange(n), (k, 1))
+    pos[2, 3] = C                                                    # padding
+    b = FeatureBatch(pos, rng.normal(size=(k, n, R, 6)) * rows[..., None],
+                     rng.normal(size=(k, n, R, 3)) * rows[..., None], rng.normal(size=(k, n, R)) * rows, rows)
+    A = rng.uniform(0.5, 3.0, size=(k, n))
+    w = whiten_depth_shared(b, A)
+
+    def extra(f, i, j, i2, j2):
+        return A[f, i] * A[f, i2] if j == 4 and j2 == 4 else 0.0
+
+    Lam = np.zeros((6 * C, 6 * C))
+    P = np.eye(21 + 6 * C) * 1e-3 + 1e-4
+    sigma = 0.3
+    gammas = []
+    for f in range(k):
+        H, Hf, r, Cov = _explicit_feature_rows(b, f, C, extra)
+        Ci = np.linalg.inv(Cov)
+        Ixf = H.T @ Ci @ Hf
+        Lam += H.T @ Ci @ H - Ixf @ np.linalg.solve(Hf.T @ Ci @ Hf, Ixf.T)
+        Hs = np.zeros((len(r), 21 + 6 * C))
+        Hs[:, 21:] = H
+        S = Hs @ P @ Hs.T + sigma ** 2 * Cov
+        Si = np.linalg.inv(S)
+        gammas.append(r @ Si @ r - (Hf.T @ Si @ r) @ np.linalg.solve(Hf.T @ Si @ Hf, Hf.T @ Si @ r))
+    H_o, _ = null_space_project(w, C)
+    np.testing.assert_allclose(H_o.T @ H_o, Lam, atol=1e-10 * np.abs(Lam).max())
+    np.testing.assert_allclose(schur_information(w, C)[0], Lam, atol=1e-10 * np.abs(Lam).max())
+    np.testing.assert_allclose(gating_chi2(P, w, sigma), gammas, rtol=1e-8)
+    # the drift model combines the pixel rows of different clones the same way
+    from msckf.update import whiten_track_drift
+    t = np.tile(np.arange(n) / 15.0, (k, 1))
+    valid = pos < C
+    q, sig = 2e-6, 3e-4
+    d = whiten_track_drift(b, t, valid, sig, q)
+
+    def drift(f, i, j, i2, j2):
+        same_axis = j < 4 and j2 < 4 and j % 2 == j2 % 2
+        return q * min(t[f, i], t[f, i2]) / sig ** 2 if same_axis else 0.0
+
+    Lam_d = np.zeros((6 * C, 6 * C))
+    for f in range(k):
+        H, Hf, r, Cov = _explicit_feature_rows(b, f, C, drift)
+        Ci = np.linalg.inv(Cov)
+        Ixf = H.T @ Ci @ Hf
+        Lam_d += H.T @ Ci @ H - Ixf @ np.linalg.solve(Hf.T @ Ci @ Hf, Ixf.T)
+    H_o, _ = null_space_project(d, C)
+    np.testing.assert_allclose(H_o.T @ H_o, Lam_d, atol=1e-10 * np.abs(Lam_d).max())
