@@ -80,6 +80,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_track_bias": "depth",
     "depth_keep_mono": "depth",
     "depth_sigma_at_prediction": "depth",
+    "depth_shared_rel_sigma": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

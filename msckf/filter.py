@@ -461,7 +461,8 @@ class MsckfFilter:
                  without_depth: bool = False) -> tuple[FeatureBatch, FeatureBatch]:
         """The blocks of :meth:`_batch` for the update and the same blocks as the χ² gate sees them: with
         ``update.gate_depth_scale`` s > 0 the gate's depth rows also carry one error shared by all readings of a
-        feature, σ = s·Z (``whiten_depth_shared``); otherwise both are the same object."""
+        feature, σ = s·Z (``whiten_depth_shared``); the update's depth rows carry ``depth.depth_shared_rel_sigma``'s
+        shared relative error the same way; otherwise both are the same object."""
         fs, cl = self.features, self.clones
         order = self._order()
         cols, valid = self._compact(clone_mask)
@@ -482,15 +483,20 @@ class MsckfFilter:
         # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other
         raw = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
         track = np.full(slots.shape, np.sqrt(self.config.depth.depth_track_bias))   # 0 (default): no shared term
-        b = whiten_depth_shared(raw, track)
-        s = self.config.update.gate_depth_scale
-        if s <= 0.0 or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
+        s_gate, s_upd = self.config.update.gate_depth_scale, self.config.depth.depth_shared_rel_sigma
+        if (s_gate <= 0.0 and s_upd <= 0.0) or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
+            b = whiten_depth_shared(raw, track)
             return b, b
         with np.errstate(divide="ignore", invalid="ignore"):
-            # σ of the shared part in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
+            # σ of a shared relative error s in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
             sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
-            scale = np.where(np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0), s / (depth * sig_rho), 0.0)
-        return b, whiten_depth_shared(raw, np.stack([track, scale], axis=-1))
+            ok = np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0)
+            scale_upd = np.where(ok, s_upd / (depth * sig_rho), 0.0)
+            scale_gate = np.where(ok, s_gate / (depth * sig_rho), 0.0)
+        b = whiten_depth_shared(raw, np.stack([track, scale_upd], axis=-1) if s_upd > 0 else track)
+        if s_gate <= 0.0:
+            return b, b
+        return b, whiten_depth_shared(raw, np.stack([track, scale_gate], axis=-1))
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""

@@ -313,6 +313,14 @@ class DepthOptions:
             filled surface), so n depth rows of a track are not n independent measurements: their whitened
             covariance is ``I + β 11ᵀ`` and together they carry at most 1/β readings' worth. 0 (default) keeps
             them independent.
+        depth_shared_rel_sigma: s ≥ 0 (dimensionless), in the update: every depth reading of a feature also
+            carries one relative error shared by all of its readings, σ = s × Z (``msckf.update.whiten_depth_shared``,
+            the update's counterpart of ``UpdateOptions.gate_depth_scale``). Measured
+            (``benchmarks/measure_track_surface.py``, stop 40): the point a KLT track follows differs from the
+            surface a depth map shows at its pixel by a per-track constant, robust σ of the per-track means
+            2.2 / 4.0 / 3.2 % with a perfect map (2.0 / 3.2 / 2.5 % with SGBM) on the simulated presets 01 / 02 / 03,
+            0.1–0.9 % within a track: n readings of a track are not n independent measurements of its depth.
+            0 (default) keeps them independent.
         depth_keep_mono: an observation with neither a depth nor a stereo match (``DepthSource.MONO``: the
             depth front end's features on a hole of the depth map) enters the filter (True) or is ignored (False,
             default since stop 34), as S-MSCKF's stereo front end drops a feature whose stereo match fails
@@ -346,10 +354,12 @@ class DepthOptions:
     depth_track_bias: float = 0.0
     depth_keep_mono: bool = False
     depth_sigma_at_prediction: bool = False
+    depth_shared_rel_sigma: float = 0.0
 
     def __post_init__(self) -> None:
         _check(self, positive=("depth_inv_sigma",),
-               non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma", "depth_track_bias"))
+               non_negative=("depth_rel_sigma", "depth_gate_sigma", "depth_motion_rel_sigma", "depth_track_bias",
+                             "depth_shared_rel_sigma"))
 
 
 @dataclass(frozen=True)
