@@ -60,6 +60,8 @@ FLAT_KEYS: dict[str, str] = {
     "feature_noise": "update",
     "gate_noise": "update",
     "stereo_gate_noise": "update",
+    "stereo_feature_noise": "update",
+    "stereo_track_drift_psd": "update",
     "chi2_quantile": "update",
     "chi2_dof": "update",
     "robust_k": "update",

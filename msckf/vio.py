@@ -36,12 +36,16 @@ class _Frontend(Protocol):
 
 
 def filter_config(config: MsckfConfig, variant: str) -> MsckfConfig:
-    """The back end's config for a front end: the ``stereo`` front end gates with ``update.stereo_gate_noise``
-    (when > 0) in place of ``update.gate_noise``; the ``depth`` front end uses the config as it is."""
+    """The back end's config for a front end: the ``stereo`` front end uses ``update.stereo_gate_noise``,
+    ``stereo_feature_noise`` and ``stereo_track_drift_psd`` (each where > 0) in place of ``gate_noise``,
+    ``feature_noise`` and ``track_drift_psd``; the ``depth`` front end uses the config as it is."""
     u = config.update
-    if variant == "stereo" and u.stereo_gate_noise > 0:
-        return replace(config, update=replace(u, gate_noise=u.stereo_gate_noise))
-    return config
+    if variant != "stereo":
+        return config
+    return replace(config, update=replace(
+        u, gate_noise=u.stereo_gate_noise if u.stereo_gate_noise > 0 else u.gate_noise,
+        feature_noise=u.stereo_feature_noise if u.stereo_feature_noise > 0 else u.feature_noise,
+        track_drift_psd=u.stereo_track_drift_psd if u.stereo_track_drift_psd > 0 else u.track_drift_psd))
 
 
 class Msckf:

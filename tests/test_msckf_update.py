@@ -408,16 +408,20 @@ def test_gate_noise_sets_the_pixel_rows_sigma_and_leaves_the_depth_row_its_own()
 
 
 def test_stereo_front_end_gates_with_its_own_noise_and_the_depth_front_end_keeps_the_config():
-    """``msckf.vio.filter_config``: the stereo back end gets ``gate_noise = stereo_gate_noise``; the depth back end
-    gets the config unchanged; ``stereo_gate_noise = 0`` falls back to ``gate_noise``."""
+    """``msckf.vio.filter_config``: the stereo back end gets ``gate_noise = stereo_gate_noise``, ``feature_noise =
+    stereo_feature_noise`` and ``track_drift_psd = stereo_track_drift_psd``; the depth back end gets the config
+    unchanged; a stereo value of 0 falls back to the shared one."""
     from msckf.vio import filter_config
 
-    cfg = load_config({"stereo_gate_noise": 0.0005, "gate_noise": 0.0})
-    assert filter_config(cfg, "stereo").update.gate_noise == 0.0005
-    assert filter_config(cfg, "stereo").update.feature_noise == cfg.update.feature_noise
+    cfg = load_config({"stereo_gate_noise": 0.0005, "gate_noise": 0.0, "stereo_feature_noise": 0.0009,
+                       "stereo_track_drift_psd": 2e-6})
+    st = filter_config(cfg, "stereo").update
+    assert (st.gate_noise, st.feature_noise, st.track_drift_psd) == (0.0005, 0.0009, 2e-6)
     assert filter_config(cfg, "depth") is cfg
-    off = load_config({"stereo_gate_noise": 0.0, "gate_noise": 0.002})
-    assert filter_config(off, "stereo").update.gate_noise == 0.002
+    off = load_config({"stereo_gate_noise": 0.0, "gate_noise": 0.002, "stereo_feature_noise": 0.0,
+                       "stereo_track_drift_psd": 0.0, "track_drift_psd": 1e-6})
+    st = filter_config(off, "stereo").update
+    assert (st.gate_noise, st.feature_noise, st.track_drift_psd) == (0.002, off.update.feature_noise, 1e-6)
 
 
 def test_gate_statistic_stays_large_for_a_feature_with_a_huge_jacobian():

@@ -32,7 +32,7 @@ def test_facade_drives_front_end_and_filter_from_arrays():
     # the world's pixel noise is white 1 px: the gate's σ is the feature σ, not the 0.18 px calibrated on rendered
     # KLT tracks
     cfg = dict(gyro_noise=0.002, acc_noise=0.02, gyro_bias_noise=1e-4, acc_bias_noise=1e-3, feature_noise=1.0 / FX,
-               stereo_gate_noise=1.0 / FX)
+               stereo_gate_noise=1.0 / FX, stereo_feature_noise=1.0 / FX, stereo_track_drift_psd=0.0)
     fe = _ReplayFrontend(w.frames)
     vio = Msckf(cfg, rig, variant="stereo", seed=3, frontend=fe)
     # the sim world uses the same Rosario extrinsics as the rig (to ~1e-6)
