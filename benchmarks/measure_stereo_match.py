@@ -21,6 +21,7 @@ import argparse  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from scipy.stats import median_abs_deviation  # noqa: E402
 
 from msckf.config import load_config  # noqa: E402
 from msckf.vio import Msckf  # noqa: E402
@@ -34,7 +35,7 @@ from pipeline.sim_source import simulate_cached  # noqa: E402
 
 
 def _robust_sigma(x: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
+    return float(median_abs_deviation(x, scale="normal")) if x.size else float("nan")
 
 
 def match_errors(sim: SimulatedSequence, flat_rel: float = 0.03) -> np.ndarray:

@@ -491,12 +491,13 @@ class MsckfFilter:
             # σ of a shared relative error s in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
             sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
             ok = np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0)
-            scale_upd = np.where(ok, s_upd / (depth * sig_rho), 0.0)
-            scale_gate = np.where(ok, s_gate / (depth * sig_rho), 0.0)
-        b = whiten_depth_shared(raw, np.stack([track, scale_upd], axis=-1) if s_upd > 0 else track)
-        if s_gate <= 0.0:
-            return b, b
-        return b, whiten_depth_shared(raw, np.stack([track, scale_gate], axis=-1))
+
+            def with_shared(s: float) -> FeatureBatch:
+                # a zero term adds nothing (whiten_depth_shared returns the batch when every loading is 0)
+                return whiten_depth_shared(raw, np.stack([track, np.where(ok, s / (depth * sig_rho), 0.0)], axis=-1))
+
+            b = with_shared(s_upd)
+            return b, (with_shared(s_gate) if s_gate > 0.0 else b)
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""

@@ -94,15 +94,8 @@ def sample_depth(
     reason[inside] = DepthReject.INVALID
 
     # Depth-edge test on a window around the nearest pixel (only where the depth itself was good).
-    half = edge_window // 2
-    off = np.arange(-half, half + 1)
     gi = np.flatnonzero(good)
-    cx = np.clip(np.rint(us[gi]).astype(np.int64), 0, w - 1)
-    cy = np.clip(np.rint(vs[gi]).astype(np.int64), 0, h - 1)
-    wx = np.clip(cx[:, None, None] + off[None, None, :], 0, w - 1)
-    wy = np.clip(cy[:, None, None] + off[None, :, None], 0, h - 1)
-    wd = depth_m[wy, wx].reshape(len(gi), edge_window * edge_window).astype(np.float64)
-    wok = depth_valid[wy, wx].reshape(len(gi), edge_window * edge_window) & np.isfinite(wd) & (wd > 0)
+    wd, wok = _window_depths(depth_m, depth_valid, us[gi], vs[gi], edge_window)
     hi = np.max(np.where(wok, wd, -np.inf), axis=1, initial=-np.inf)
     lo = np.min(np.where(wok, wd, np.inf), axis=1, initial=np.inf)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -121,21 +114,29 @@ def sample_depth(
     return depth, reason
 
 
+def _window_depths(depth_m: np.ndarray, depth_valid: np.ndarray, u: np.ndarray, v: np.ndarray, size: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The depths (m, float64) of the odd ``size × size`` window around each ``rint(u, v)`` (indices clipped to
+    the map) and which of them are valid: two (N, size²) arrays."""
+    h, w = depth_m.shape
+    half = size // 2
+    off = np.arange(-half, half + 1)
+    cx = np.clip(np.rint(u).astype(np.int64), 0, w - 1)
+    cy = np.clip(np.rint(v).astype(np.int64), 0, h - 1)
+    wx = np.clip(cx[:, None, None] + off[None, None, :], 0, w - 1)
+    wy = np.clip(cy[:, None, None] + off[None, :, None], 0, h - 1)
+    m = len(off) * len(off)
+    wd = depth_m[wy, wx].reshape(len(u), m).astype(np.float64)
+    return wd, depth_valid[wy, wx].reshape(len(u), m) & np.isfinite(wd) & (wd > 0)
+
+
 def _patch_depth(depth_m: np.ndarray, depth_valid: np.ndarray, u: np.ndarray, v: np.ndarray, patch_size: int
                  ) -> np.ndarray:
     """(N,) ``1 / mean(1 / Z)`` over the valid pixels of the ``patch_size`` window around each ``rint(u, v)``
     (clipped to the map; the centre pixel is valid wherever this is called)."""
     if patch_size < 1:
         raise ValueError("depth sampling 'patch' needs patch_size >= 1")
-    h, w = depth_m.shape
-    half = patch_size // 2
-    off = np.arange(-half, half + 1)
-    cx = np.clip(np.rint(u).astype(np.int64), 0, w - 1)
-    cy = np.clip(np.rint(v).astype(np.int64), 0, h - 1)
-    wx = np.clip(cx[:, None, None] + off[None, None, :], 0, w - 1)
-    wy = np.clip(cy[:, None, None] + off[None, :, None], 0, h - 1)
-    wd = depth_m[wy, wx].reshape(len(u), -1).astype(np.float64)
-    ok = depth_valid[wy, wx].reshape(len(u), -1) & np.isfinite(wd) & (wd > 0)
+    wd, ok = _window_depths(depth_m, depth_valid, u, v, patch_size)
     inv = np.sum(np.where(ok, 1.0 / np.where(ok, wd, 1.0), 0.0), axis=1) / np.maximum(ok.sum(axis=1), 1)
     return 1.0 / inv
 

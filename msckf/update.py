@@ -149,8 +149,14 @@ class FeatureBatch:
         return np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
 
 
-def _compose_mix(batch: FeatureBatch, T: np.ndarray) -> np.ndarray:
-    """``T @ batch.mix`` (T: (k, n·R, n·R)), ``T`` alone where the batch has no mix yet."""
+def _compose_mix(batch: FeatureBatch, blocks: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The batch's ``mix`` after combining, for each ``(flat, Li)`` of ``blocks``, its rows ``flat`` ((m,) flat row
+    indices, disjoint between blocks) by ``Li`` ((k, m, m)), the other rows untouched: ``T @ mix`` with T the
+    identity but for those blocks (``T`` alone where the batch has no mix yet)."""
+    k, n, R = batch.r.shape
+    T = np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
+    for flat, Li in blocks:
+        T[:, flat[:, None], flat[None, :]] = Li
     return T if batch.mix is None else T @ batch.mix
 
 
@@ -372,7 +378,7 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
     t = np.where(valid, times_s - np.where(np.isfinite(t0), t0, 0.0), 0.0)
     ratio = drift_psd / (sigma * sigma)
     r, Hf = batch.r.copy(), batch.Hf.copy()
-    T = np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
+    blocks: list[tuple[np.ndarray, np.ndarray]] = []
     for left, right in ((0, 2), (1, 3)):
         cols = [c for c in (left, right) if c < R]
         ok = np.concatenate([batch.rows[:, :, c] & valid for c in cols], axis=1)      # (k, m·n)
@@ -387,11 +393,13 @@ def whiten_track_drift(batch: FeatureBatch, times_s: np.ndarray, valid: np.ndarr
         rw = (Li @ rr[..., None])[..., 0]
         hfw = Li @ hf
         flat = np.concatenate([np.arange(n) * R + c for c in cols])                     # their flat row indices
-        T[:, flat[:, None], flat[None, :]] = Li
+        blocks.append((flat, Li))
         for j, c in enumerate(cols):
             r[:, :, c] = rw[:, j * n:(j + 1) * n]
             Hf[:, :, c] = hfw[:, j * n:(j + 1) * n]
-    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, T))
+    if not blocks:
+        return batch
+    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, blocks))
 
 
 def whiten_depth_track(batch: FeatureBatch, bias_ratio: float) -> FeatureBatch:
@@ -439,10 +447,7 @@ def whiten_depth_shared(batch: FeatureBatch, shared: np.ndarray) -> FeatureBatch
     r, Hf = batch.r.copy(), batch.Hf.copy()
     r[:, :, 4] = (Li @ batch.r[:, :, 4][..., None])[..., 0]
     Hf[:, :, 4] = Li @ batch.Hf[:, :, 4]
-    T = np.broadcast_to(np.eye(n * R), (k, n * R, n * R)).copy()
-    flat = np.arange(n) * R + 4
-    T[:, flat[:, None], flat[None, :]] = Li
-    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, T))
+    return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, [(np.arange(n) * R + 4, Li)]))
 
 
 def downweight_features(batch: FeatureBatch, gamma_per_dof: np.ndarray, k: float) -> FeatureBatch:
