@@ -709,12 +709,12 @@ class MsckfFilter:
         ``R_w_i_true`` (3, 3) maps IMU-frame vectors into this filter's world frame, ``p_w_true`` (3,) is the IMU
         position in it (m). Position error ``p_true − p̂`` against the covariance block of p (m²); orientation error
         ``Log(R̂ᵀ R_true)`` (rad, the filter's local perturbation) against the block of θ. Each is χ²(3) for a
-        consistent filter (mean 3)."""
+        consistent filter (mean 3). NaN for a block that is singular (the filter claims no uncertainty there, e.g.
+        the zero position covariance right after an online reset): no NEES is defined then."""
         s = self._initialised()
         ep = np.asarray(p_w_true, dtype=np.float64) - s.p
         et = so3_log(s.R_w_i.T @ np.asarray(R_w_i_true, dtype=np.float64))
-        return (float(ep @ np.linalg.solve(self.P[12:15, 12:15], ep)),
-                float(et @ np.linalg.solve(self.P[0:3, 0:3], et)))
+        return _nees(ep, self.P[12:15, 12:15]), _nees(et, self.P[0:3, 0:3])
 
     def _online_reset(self) -> bool:
         thr = self.config.health.position_std_threshold
@@ -728,3 +728,11 @@ class MsckfFilter:
         self.P = self._initial_cov()
         self.n_online_resets += 1
         return True
+
+
+def _nees(err: np.ndarray, cov: np.ndarray) -> float:
+    """``errᵀ cov⁻¹ err``; NaN where ``cov`` is singular."""
+    try:
+        return float(err @ np.linalg.solve(cov, err))
+    except np.linalg.LinAlgError:
+        return float("nan")

@@ -496,26 +496,33 @@ class NeesAccumulator:
     """Per-frame NEES of one run's IMU pose against the truth (``pipeline.oracle_truth``); a no-op without truth.
 
     ``add(filter, stamp_s)`` after each pose the filter returns; ``stats()`` gives ``nees_position_mean`` and
-    ``nees_orientation_mean`` (time averages over the frames within the truth's span; NaN when there were none).
+    ``nees_orientation_mean`` (time averages over the frames within the truth's span where the NEES is defined;
+    NaN when there were none) and ``nees_undefined_frames`` (frames whose covariance block was singular, e.g. the
+    zero position covariance right after an online reset: left out of the means, counted here).
     """
 
     def __init__(self, truth: TrueImuPoses | None) -> None:
         self._anchored = AnchoredTruth(truth) if truth is not None else None
         self.position: list[float] = []
         self.orientation: list[float] = []
+        self.undefined = 0
 
     def add(self, filt: MsckfFilter, stamp_s: float) -> None:
         if self._anchored is None or filt.state is None or not self._anchored.poses.covers(stamp_s):
             return
         R_true, p_true = self._anchored(stamp_s, filt.state.R_w_i, filt.state.p)
         e_p, e_t = filt.pose_nees(R_true, p_true)
+        if not (np.isfinite(e_p) and np.isfinite(e_t)):
+            self.undefined += 1
+            return
         self.position.append(e_p)
         self.orientation.append(e_t)
 
     def stats(self) -> dict[str, float]:
         def mean(v: list[float]) -> float:
             return float(np.mean(v)) if v else float("nan")
-        return {"nees_position_mean": mean(self.position), "nees_orientation_mean": mean(self.orientation)}
+        return {"nees_position_mean": mean(self.position), "nees_orientation_mean": mean(self.orientation),
+                "nees_undefined_frames": float(self.undefined)}
 
 
 def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,

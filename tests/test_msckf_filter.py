@@ -319,6 +319,9 @@ def test_pose_nees_weighs_the_pose_error_by_the_filters_covariance():
     e_p, e_t = flt.pose_nees(R0 @ so3_exp(np.array([0.0, 0.02, 0.0])), p0 + np.array([0.0, 0.4, 0.0]))
     assert e_p == pytest.approx(0.4 ** 2 / 4e-2)
     assert e_t == pytest.approx(0.02 ** 2 / 1e-4)
+    flt.P[12:15, 12:15] = 0.0                      # as right after an online reset: no position uncertainty claimed
+    e_p, e_t = flt.pose_nees(R0, p0 + np.array([0.0, 0.4, 0.0]))
+    assert np.isnan(e_p) and e_t == pytest.approx(0.0)
 
 
 def _with_track_scaled_depth(w, rel_sigma: float, seed: int):

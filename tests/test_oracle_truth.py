@@ -48,3 +48,23 @@ def test_anchor_takes_the_estimates_yaw_and_origin_but_not_its_roll_and_pitch():
     R_true, _ = tilted(0.5, R_W_E @ R_E @ tilt, R_W_E @ p_E)
     err = Rotation.from_matrix((R_W_E @ R_E @ tilt).T @ R_true).magnitude()
     assert 0.009 < err < 0.011
+
+
+def test_nees_accumulator_leaves_frames_without_a_defined_nees_out_and_counts_them():
+    """A frame whose covariance block is singular (a filter right after an online reset claims zero position
+    uncertainty) has no NEES: the run's means skip it instead of crashing, and say how many were skipped."""
+    from msckf.config import load_config
+    from msckf.filter import MsckfFilter
+    from pipeline.depth_oracle import NeesAccumulator
+
+    tr = _circle_truth()
+    R0, p0 = tr.at(0.0)
+    flt = MsckfFilter(load_config(None), np.eye(4), np.eye(4))
+    flt.initialize(0.0, R0, p0, covariance=np.eye(21) * 1e-2)
+    acc = NeesAccumulator(tr)
+    acc.add(flt, 0.0)
+    flt.P[12:15, 12:15] = 0.0
+    acc.add(flt, 0.0)
+    st = acc.stats()
+    assert st["nees_undefined_frames"] == 1.0
+    assert st["nees_position_mean"] == pytest.approx(0.0) and np.isfinite(st["nees_orientation_mean"])
