@@ -61,9 +61,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="keep the fills open to the far field (disable pipeline.depth_sigma's far-field rule)")
     ap.add_argument("--far-open-radius", type=int, default=None,
                     help="geodesic reach (px) of the far-field rule (default: pipeline.depth_sigma's)")
-    ap.add_argument("--fill-edge-ratio", type=float, default=None,
-                    help="drop fills whose raw neighbourhood spans more than this depth ratio (pipeline.depth_sigma's "
-                         "occlusion-edge rule, off by default), e.g. 1.25")
+    ap.add_argument("--fill-edge-sigmas", type=float, default=None,
+                    help="the occlusion-edge rule's threshold: drop fills whose raw neighbourhood spans more than this "
+                         "many √2·σ_d of disparity (pipeline.depth_sigma.EDGE_DISPARITY_SIGMAS; 0 = rule off)")
     ap.add_argument("--track-noise", nargs="*", type=float, default=[],
                     help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
     ap.add_argument("--structure", action="store_true",
@@ -80,8 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     sigma_overrides: dict[str, float | int] = {}
     if args.no_far_open or args.far_open_radius is not None:
         sigma_overrides["far_open_radius_px"] = 0 if args.no_far_open else args.far_open_radius
-    if args.fill_edge_ratio is not None:
-        sigma_overrides["edge_ratio"] = args.fill_edge_ratio
+    if args.fill_edge_sigmas is not None:
+        sigma_overrides["edge_disparity_sigmas"] = args.fill_edge_sigmas
     t0 = time.perf_counter()
     for p in args.presets:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
               f"σ to the filter: {'no' if args.no_sigma else 'yes'}; far-field fills: "
               f"{'kept' if args.no_far_open else 'dropped'}"
               f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'}"
-              f"{'' if args.fill_edge_ratio is None else f'; occlusion-edge rule, ratio {args.fill_edge_ratio:g}'})")
+              f"{'' if args.fill_edge_sigmas is None else f'; occlusion-edge rule {args.fill_edge_sigmas:g} σ'})")
         print("\n".join(rung_table(res, args.seeds)))
         tri = np.mean([v["triangulated"] for v in extra[preset]["truth"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "

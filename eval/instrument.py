@@ -22,6 +22,7 @@ _COLUMNS = (("feature_depth", "filled_fraction", "filled share of feature depths
             ("feature_depth", "sigma_rel_median_measured", "σ_Z/Z measured", "{:.1%}"),
             ("feature_depth", "sigma_rel_median_filled", "σ_Z/Z filled", "{:.1%}"),
             ("feature_depth", "far_open_fill_fraction", "fill pixels open to the far field", "{:.0%}"),
+            ("feature_depth", "occlusion_edge_fill_fraction", "fill pixels at occlusion edges", "{:.0%}"),
             ("chi2_gate", "gamma_per_dof_median", "γ/dof median", "{:.3f}"),
             ("chi2_gate", "gamma_per_dof_mean", "γ/dof mean", "{:.2f}"),
             ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"))

@@ -45,7 +45,7 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
     Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
     reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`). ``sigma_overrides``:
     fields of the rig's :class:`DepthSigmaModel` replaced for the ablations, e.g. ``{"far_open_radius_px": 0}`` (the
-    far-field rule off: every fill kept) or ``{"edge_ratio": 1.25}`` (the occlusion-edge rule on).
+    far-field rule off: every fill kept) or ``{"edge_disparity_sigmas": 0}`` (the occlusion-edge rule off).
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)

@@ -17,6 +17,12 @@ is not bounded from above by anything the camera measured: sky and the far field
 holes of that kind, and a fill there extrapolates the bordering depths into a region whose true depth may be
 anywhere beyond them (measured: :data:`FAR_OPEN_SIGMAS`). :meth:`DepthSigmaModel.filled` drops those fills
 from the valid mask, so the feature there stays monocular, as it is in ``depth-raw``.
+
+With the occlusion-edge rule on (:data:`EDGE_DISPARITY_SIGMAS`; off by default), fills at occlusion edges carry
+no depth either: where the measured disparities
+within a tracker's window of a hole differ by more than SGBM's noise explains, the hole is the occlusion SGBM
+leaves at a depth discontinuity, and a corner tracked there is a T-junction of two surfaces whose apparent motion
+no single surface depth describes.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from pipeline.depth_sigma_kernels import filled_sigma_map, raw_sigma_map
 from pipeline.far_field_kernels import geodesic_reach
 
 __all__ = ["DepthSigmaModel", "RAW_DISPARITY_SIGMA_PX", "FILL_CALIBRATION", "FAR_OPEN_SIGMAS", "FAR_OPEN_RADIUS_PX",
-           "EDGE_RADIUS_PX",
+           "EDGE_DISPARITY_SIGMAS", "EDGE_RADIUS_PX",
            "fill_distance_px", "fit_fill_model"]
 
 #: σ of SGBM's disparity error, px: robust σ (1.4826·MAD) of ``f·B/Z_sgbm − f·B/Z_exact`` over the valid pixels
@@ -72,19 +78,22 @@ FAR_OPEN_SIGMAS = 5.0
 #: 1 % / 0 % of the others; a 63-step geodesic reach flags 99 % of the far ones and 6 % / 4 % of those with a 3-D
 #: point / an exact map value; a plain "> 31 px from any measurement" rule would cost 20 % / 15 % of those.
 FAR_OPEN_RADIUS_PX = 63
-#: The occlusion-edge rule (off by default: ``edge_ratio`` 0): a filled pixel whose (2r+1)² neighbourhood in the raw
-#: map holds measured depths spanning more than ``edge_ratio`` (max / min) sits in the hole SGBM leaves at a depth
-#: discontinuity, where a tracked corner is often a T-junction of two surfaces (not one 3-D point) and a fill takes
-#: one of them. Measured (stop 38, oracle back end, first 240 s of 450 s rosario-like-03, seeds 0 / 1): r = 15 px and
-#: ratio 1.25 flag 73 % of the `paper` fills that feed tracks that are not consistent 3-D points and 45 % of those on
-#: tracks that are; `paper` ATE 0.498 / 0.619 → 0.529 / 0.294 m, NEES of position 5.9 / 5.4 → 2.7 / 2.8, and its
-#: heading drift on the third row pass (−4.7 / −3.9° over 184–232 s) → −1.0 / −2.8° (r = 7 px: no gain). At 120 s
-#: (``bench_depth_oracle.py --duration 120 --seeds 0 1 --fill-edge-ratio 1.25``) it makes `paper` consistent on every
-#: preset (NEES of position / orientation 01 7.5 / 7.7 → 2.8 / 2.0, 02 2.4 / 7.9 → 0.9 / 2.4, 03 8.0 / 3.5 → 2.2 / 1.3)
-#: but its ATE moves 0.120 → 0.114 (01), 0.185 → 0.118 (02, below depth-raw's 0.137) and 0.185 → 0.280 m (03, worse):
-#: hence off by default. Ratios 1.5 / 2.0 give 0.179 / 0.111 (01), 0.197 / 0.177 (02), 0.195 / 0.222 m (03): not
-#: monotone in the threshold (two seeds; the 120 s ATE reacts chaotically to which features carry depth).
-EDGE_RADIUS_PX = 15
+#: The occlusion-edge rule (off by default; this is its threshold when on): a filled pixel whose (2r+1)²
+#: neighbourhood in the raw map holds measured disparities (``f·B / Z``) spanning more than
+#: ``EDGE_DISPARITY_SIGMAS · √2 · σ_d`` (two measurements further apart than SGBM's own noise explains) sits in the
+#: hole SGBM leaves at a depth discontinuity, and carries no depth. r is the KLT tracker's half window (15 px,
+#: ``FrontendConfig.patch_size``): a corner tracked there is a T-junction of the two surfaces the window straddles,
+#: whose apparent motion is that of a virtual point between them, which no fill of either surface gives.
+#: Measured (stop 41, oracle back end, 10 s presets 01 / 02 / 03, seeds 0–2, the same tracks in every row): at 10 s
+#: the whole cost of `paper`'s fills lay on tracks that are not consistent 3-D points (RMS > 1 px against the true
+#: poses; 42 / 46 / 62 % of the fill-fed observations): fills on those tracks only 0.0243 / 0.0188 / 0.0346 m, on
+#: the consistent tracks only 0.0150 / 0.0148 / 0.0178 m, depth-raw 0.0136 / 0.0144 / 0.0148 m. With the rule (3 σ,
+#: the one setting run) the ladder's `paper` rung goes 0.0211 / 0.0177 / 0.0208 → 0.0143 / 0.0125 / 0.0148 m. But
+#: the pipeline at 120 s (5 seeds, depth-raw 0.086 / 0.135 / 0.169 m) gives `paper` 0.116 / 0.176 / 0.197 →
+#: 0.142 / 0.163 / 0.190 m (rosario-like-01 worse on 5 of 5 seeds): at 120 s fills hurt on consistent tracks too,
+#: hence off. Stop 38's ratio form (31 px, max / min > 1.25) was measured with stop 40's whitening bug.
+EDGE_DISPARITY_SIGMAS = 3.0
+EDGE_RADIUS_PX = 7
 
 
 def _f32(a: np.ndarray) -> np.ndarray:
@@ -120,8 +129,9 @@ class DepthSigmaModel:
         fill: method → (rel_0, rel_per_px, rel_max) (see the module doc).
         far_open_sigmas, far_open_radius_px: the far-field rule (:data:`FAR_OPEN_SIGMAS`); 0 sigmas or a reach of
             0 disables it.
-        edge_ratio, edge_radius_px: the occlusion-edge rule (:data:`EDGE_RADIUS_PX`): fills whose raw
-            neighbourhood spans a depth ratio above ``edge_ratio`` carry no depth; 0 (default) disables it.
+        edge_disparity_sigmas, edge_radius_px: the occlusion-edge rule (:data:`EDGE_DISPARITY_SIGMAS`): fills whose
+            raw neighbourhood spans more than ``edge_disparity_sigmas · √2 · disparity_sigma_px`` of disparity
+            carry no depth; 0 (default: better at 10 s, worse on rosario-like-01 at 120 s) disables it.
     """
 
     fx_baseline: float
@@ -129,7 +139,7 @@ class DepthSigmaModel:
     fill: dict[str, tuple[float, float, float]] = field(default_factory=lambda: dict(FILL_CALIBRATION))
     far_open_sigmas: float = FAR_OPEN_SIGMAS
     far_open_radius_px: int = FAR_OPEN_RADIUS_PX
-    edge_ratio: float = 0.0
+    edge_disparity_sigmas: float = 0.0
     edge_radius_px: int = EDGE_RADIUS_PX
 
     @classmethod
@@ -181,19 +191,22 @@ class DepthSigmaModel:
 
     def occlusion_edge(self, raw_depth_m: np.ndarray, raw_valid: np.ndarray) -> np.ndarray:
         """(H, W) bool: the holes of a raw map whose (2r+1)² neighbourhood (r = ``edge_radius_px``) holds measured
-        depths spanning more than ``edge_ratio`` (largest / smallest): holes at a depth discontinuity. All False
-        when disabled (``edge_ratio`` ≤ 0) or where no measured pixel is that near."""
-        if self.edge_ratio <= 0 or raw_valid.all() or not raw_valid.any():
+        disparities ``f·B / Z`` spanning more than ``edge_disparity_sigmas · √2 · disparity_sigma_px`` px: holes at
+        a depth discontinuity. All False when disabled (``edge_disparity_sigmas`` ≤ 0) or where no measured pixel
+        is that near."""
+        if self.edge_disparity_sigmas <= 0 or raw_valid.all() or not raw_valid.any():
             return np.zeros(raw_valid.shape, dtype=bool)
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * self.edge_radius_px + 1,) * 2)
-        valid = _bool(raw_valid)
-        z = _f32(raw_depth_m)
-        # no measured pixel in the window: max 0, min +inf (or OpenCV's border value FLT_MAX, whose product with the
-        # ratio overflows to +inf, harmlessly), so the ratio test is False there
-        z_max = cv2.dilate(np.where(valid, z, np.float32(0)), kernel)
-        z_min = cv2.erode(np.where(valid, z, np.float32(np.inf)), kernel)
-        with np.errstate(over="ignore"):
-            return ~valid & (z_max > np.float32(self.edge_ratio) * z_min)
+        valid = _bool(raw_valid) & (np.asarray(raw_depth_m) > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.float32(self.fx_baseline) / _f32(raw_depth_m)
+        # no measured pixel in the window: max −inf (OpenCV's border value −FLT_MAX where the window leaves the
+        # image), min +inf: their difference is −inf, so the test is False there
+        d_max = cv2.dilate(np.where(valid, d, np.float32(-np.inf)), kernel)
+        d_min = cv2.erode(np.where(valid, d, np.float32(np.inf)), kernel)
+        limit = np.float32(self.edge_disparity_sigmas * np.sqrt(2.0) * self.disparity_sigma_px)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return ~_bool(raw_valid) & (d_max - d_min > limit)
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:
@@ -203,8 +216,17 @@ class DepthSigmaModel:
         enabled, the fills at occlusion edges (:meth:`occlusion_edge`); σ_Z in metres is :meth:`filled_sigma`
         (NaN where not valid). ``raw_*``: the raw SGBM map the fill was made from.
         """
-        ok = valid & ~self.far_open(raw_depth_m, raw_valid) & ~self.occlusion_edge(raw_depth_m, raw_valid)
-        return ok, self.filled_sigma(depth_m, raw_valid, method, keep=ok)
+        ok, sigma, _, _ = self.filled_detail(depth_m, valid, raw_depth_m, raw_valid, method)
+        return ok, sigma
+
+    def filled_detail(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
+                      method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`filled` and why fills were dropped: ``(valid, σ_Z, far_open, occlusion_edge)``, all (H, W); the
+        last two are the rules' masks (:meth:`far_open`, :meth:`occlusion_edge`; a pixel may be in both)."""
+        far = self.far_open(raw_depth_m, raw_valid)
+        edge = self.occlusion_edge(raw_depth_m, raw_valid)
+        ok = valid & ~far & ~edge
+        return ok, self.filled_sigma(depth_m, raw_valid, method, keep=ok), far, edge
 
 
 def fit_fill_model(rel_err: np.ndarray, dist_px: np.ndarray, rel_max: float = 0.5) -> tuple[float, float, float]:

@@ -108,6 +108,7 @@ class FrameLog:
         self.gated_out = 0
         self.fill_px = 0
         self.far_open_px = 0
+        self.occlusion_edge_px = 0
         self._pending: list[list[np.ndarray]] = [[] for _ in FEATURE_COLUMNS]
         self._spill: Path | None = None
         self._files: list[Any] = []
@@ -132,11 +133,13 @@ class FrameLog:
         return len(self.stamps)
 
     # ---- adding -----------------------------------------------------------------------------------------------
-    def add_fills(self, n_filled_px: int, n_far_open_px: int) -> None:
-        """Count one frame's inpainted pixels (raw SGBM holes the method filled) and how many of them were
-        dropped as open to the far field (:meth:`pipeline.depth_sigma.DepthSigmaModel.far_open`)."""
+    def add_fills(self, n_filled_px: int, n_far_open_px: int, n_occlusion_edge_px: int = 0) -> None:
+        """Count one frame's inpainted pixels (raw SGBM holes the method filled), how many of them were dropped
+        as open to the far field (:meth:`pipeline.depth_sigma.DepthSigmaModel.far_open`) and how many others as
+        lying at an occlusion edge (:meth:`~pipeline.depth_sigma.DepthSigmaModel.occlusion_edge`)."""
         self.fill_px += int(n_filled_px)
         self.far_open_px += int(n_far_open_px)
+        self.occlusion_edge_px += int(n_occlusion_edge_px)
 
     def add_gate(self, stats: Any) -> None:
         """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature."""
@@ -243,6 +246,7 @@ class FrameLog:
                 out[f"sigma_rel_median_{name}"] = float(np.median(r))
         if self.fill_px:
             out["far_open_fill_fraction"] = float(self.far_open_px / self.fill_px)
+            out["occlusion_edge_fill_fraction"] = float(self.occlusion_edge_px / self.fill_px)
         return out
 
     def timing_summary(self) -> dict[str, float]:

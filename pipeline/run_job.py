@@ -149,10 +149,12 @@ def _feed(job: Job, plan: RunPlan, seq: RosarioSequence, log: FrameLog, vio: Msc
                     if r is None or r.stamp_ns != frame.stamp_ns:
                         raise AgrivioError(f"{seq.path}: raw depth cache has no frame {frame.index} at stamp "
                                            f"{frame.stamp_ns} ns")
-                    valid, sigma = sigma_model.filled(d.depth_m, d.valid, r.depth_m, r.valid, plan.inpaint_method)
+                    valid, sigma, far, edge = sigma_model.filled_detail(d.depth_m, d.valid, r.depth_m, r.valid,
+                                                                        plan.inpaint_method)
                     measured = r.valid
                     fills = d.valid & ~r.valid
-                    log.add_fills(np.count_nonzero(fills), np.count_nonzero(fills & ~valid))
+                    log.add_fills(np.count_nonzero(fills), np.count_nonzero(fills & far),
+                                  np.count_nonzero(fills & edge & ~far))
                 pose = vio.add_frame(t_img, left, depth=d.depth_m, depth_valid=valid, depth_sigma=sigma,
                                      depth_measured=measured)
                 if recorder is not None:

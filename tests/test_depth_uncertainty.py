@@ -85,7 +85,7 @@ def test_compiled_sigma_maps_equal_the_numpy_expressions_bit_for_bit(per_px):
 def test_fills_open_to_the_far_field_carry_no_depth():
     # f·B = 40 px·m, σ_d = 0.5 px, 5 σ → a measured depth ≥ 40 / 2.5 = 16 m is compatible with infinity
     model = DepthSigmaModel(fx_baseline=40.0, disparity_sigma_px=0.5, fill={"m": (0.1, 0.0, 0.5)},
-                            far_open_sigmas=5.0, far_open_radius_px=3)
+                            far_open_sigmas=5.0, far_open_radius_px=3, edge_disparity_sigmas=0.0)
     raw = np.full((12, 40), 4.0, np.float32)
     raw_valid = np.ones(raw.shape, bool)
     raw[:, 30:] = 18.0                                                 # the far field on the right
@@ -106,10 +106,11 @@ def test_fills_open_to_the_far_field_carry_no_depth():
     assert model.filled(inpainted, all_valid, near, raw_valid, "m")[0].all()
 
 
-def test_fills_at_an_occlusion_edge_carry_no_depth_when_the_rule_is_on():
-    # a 2 m plant in front of 5 m soil; SGBM's occlusion hole between them, and a hole inside the flat soil
+def test_fills_at_an_occlusion_edge_carry_no_depth():
+    # a 2 m plant in front of 5 m soil (disparity 20 vs 8 px at f·B = 40 px·m); SGBM's occlusion hole between them,
+    # and a hole inside the flat soil
     model = DepthSigmaModel(fx_baseline=40.0, disparity_sigma_px=0.5, fill={"m": (0.1, 0.0, 0.5)},
-                            far_open_sigmas=0.0, edge_ratio=1.25, edge_radius_px=3)
+                            far_open_sigmas=0.0, edge_disparity_sigmas=3.0, edge_radius_px=3)
     raw = np.full((20, 40), 5.0, np.float32)
     raw[:, :12] = 2.0
     raw_valid = np.ones(raw.shape, bool)
@@ -118,11 +119,20 @@ def test_fills_at_an_occlusion_edge_carry_no_depth_when_the_rule_is_on():
     inpainted = np.where(raw_valid, raw, 4.0).astype(np.float32)
     all_valid = np.ones(raw.shape, bool)
     valid, sigma = model.filled(inpainted, all_valid, raw, raw_valid, "m")
-    assert not valid[:, 12:15].any() and np.isnan(sigma[:, 12:15]).all()  # 2 m and 5 m within 3 px: ratio 2.5
+    assert not valid[:, 12:15].any() and np.isnan(sigma[:, 12:15]).all()  # 20 and 8 px within 3 px: 12 px > 2.1 px
     assert valid[8:12, 28:32].all()                                    # only 5 m around it: kept
     assert valid[raw_valid].all()                                      # measured pixels are never dropped
-    assert dataclasses.replace(model, edge_ratio=0.0).filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
-    assert dataclasses.replace(model, edge_ratio=3.0).filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
+    v2, s2, far, edge = model.filled_detail(inpainted, all_valid, raw, raw_valid, "m")   # and why
+    assert np.array_equal(v2, valid) and np.array_equal(s2, sigma, equal_nan=True)
+    assert edge[:, 12:15].all() and not edge[raw_valid].any() and not edge[8:12, 28:32].any() and not far.any()
+    off = dataclasses.replace(model, edge_disparity_sigmas=0.0)
+    assert off.filled(inpainted, all_valid, raw, raw_valid, "m")[0].all()
+    # SGBM noise is not an edge: soil at 5.0 m beside 5.2 m (8.0 vs 7.7 px, 0.3 px < 3·√2·0.5 = 2.1 px) keeps its fills
+    noisy = np.where(np.arange(40)[None, :] % 2 == 0, 5.0, 5.2).astype(np.float32) * np.ones((20, 1), np.float32)
+    assert model.filled(inpainted, all_valid, noisy, raw_valid, "m")[0].all()
+    # the threshold is in disparity, not in depth ratio: the same 5 → 5.2 m step at 40× the disparity noise's scale
+    assert not dataclasses.replace(model, disparity_sigma_px=0.05).filled(inpainted, all_valid, noisy, raw_valid,
+                                                                           "m")[0][:, 12:15].any()
     lone = np.zeros(raw.shape, bool)                                   # no measured pixel near: nothing to compare
     assert dataclasses.replace(model, edge_radius_px=1).occlusion_edge(raw, lone).sum() == 0
 

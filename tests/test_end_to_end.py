@@ -64,6 +64,7 @@ def test_depth_runs_log_measured_and_filled_feature_depth_with_sigma(runs_dir):
     assert raw["filled_fraction"] == 0.0 and "sigma_rel_median_filled" not in raw
     assert inp["filled_fraction"] > 0.0
     assert 0.0 <= inp["far_open_fill_fraction"] <= 1.0 and "far_open_fill_fraction" not in raw
+    assert 0.0 <= inp["occlusion_edge_fill_fraction"] <= 1.0 - inp["far_open_fill_fraction"]
     assert inp["sigma_rel_median_filled"] > 3 * inp["sigma_rel_median_measured"]
 
 

@@ -12,7 +12,8 @@ def _rec(variant: str, seed: int, filled: float, gamma: float, status: str = "ok
                      else None, metrics={"ate_rmse_m": 0.02 + 0.001 * seed},
                      extra={"feature_depth": {"filled_fraction": filled, "sigma_rel_median_measured": 0.02,
                                               **({"sigma_rel_median_filled": 0.15,
-                                                  "far_open_fill_fraction": 0.25} if filled else {})},
+                                                  "far_open_fill_fraction": 0.25,
+                                                  "occlusion_edge_fill_fraction": 0.125} if filled else {})},
                             "chi2_gate": {"gamma_per_dof_median": gamma, "gamma_per_dof_mean": 10 * gamma,
                                           "rejected_fraction": 0.01}})
 
@@ -24,8 +25,8 @@ def test_instrument_table_gives_medians_per_variant_and_skips_failed_runs():
     md = instrument_table(recs)
     lines = {ln.split(" | ")[1]: ln for ln in md.splitlines() if ln.startswith("| seq |")}
     assert set(lines) == {"depth-raw", "depth-inpainted[telea]"}
-    assert "| 3 | 0% | 2.0% | – | – | 0.012 |" in lines["depth-raw"]                 # median γ/dof of 3 runs
-    assert "| 3 | 40% | 2.0% | 15.0% | 25% | 0.015 |" in lines["depth-inpainted[telea]"]   # the failed run is left out
+    assert "| 3 | 0% | 2.0% | – | – | – | 0.012 |" in lines["depth-raw"]                 # median γ/dof of 3 runs
+    assert "| 3 | 40% | 2.0% | 15.0% | 25% | 12% | 0.015 |" in lines["depth-inpainted[telea]"]  # the failed run is out
     assert instrument_table([RunRecord("seq", "stereo", 0)]) is None
 
 
