@@ -50,9 +50,11 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
         lines.append(f"| {seq} | {var} | {n} | " + " | ".join(cells) + " |")
     return ("Per sequence and variant, medians over runs. *Filled share*: feature depths read from inpainted "
             "pixels (raw SGBM hole). *Fill pixels open to the far field*: inpainted pixels given no depth because "
-            "their hole reaches a measurement stereo cannot tell from infinity (pipeline/depth_sigma.py, `far_open`). "
-            "*σ_Z/Z*: the depth uncertainty the filter was given (pipeline/depth_sigma.py). "
+            "their hole reaches a measurement stereo cannot tell from infinity (pipeline/depth_sigma.py, `far_open`); "
+            "*at occlusion edges*: the other fills dropped by the occlusion-edge rule (`occlusion_edge`, off by "
+            "default: 0 %). *σ_Z/Z*: the depth uncertainty the filter was given (pipeline/depth_sigma.py). "
             "*γ/dof*: the χ² statistic per degree of freedom of every gated feature; ≈ 1 for a calibrated gate. "
-            "The stereo front end gates its pixels with σ ≈ 0.18 px (`stereo_gate_noise`, γ/dof ≈ 0.6); the depth "
-            "front end gates with the update's σ ≈ 2.5 px (≈ 10× the simulator's KLT jitter, so γ/dof is far below 1: "
-            "a tighter gate made SGBM and filled depth worse at 120 s; see the README).\n\n" + "\n".join(lines))
+            "Both front ends gate their pixels with σ ≈ 0.18 px (`gate_noise`, `stereo_gate_noise`); the depth front "
+            "end's gate also allows one scale error shared by a feature's depth readings (`gate_depth_scale` 10 %), "
+            "and its γ/dof stays well below 1 (≈ 0.2; see the README).\n\n"
+            + "\n".join(lines))
