@@ -83,6 +83,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_keep_mono": "depth",
     "depth_sigma_at_prediction": "depth",
     "depth_shared_rel_sigma": "depth",
+    "depth_fills_only_unmeasured": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

@@ -400,7 +400,14 @@ class MsckfFilter:
             return np.zeros(0, dtype=bool)
         fs, cl = self.features, self.clones
         order = self._order()
-        mask = fs.has[rows][:, order]
+        mask = self._usable_observations(rows, fs.has[rows][:, order])
+        seen = mask.any(axis=1)
+        if not seen.all():  # nothing left to triangulate from (every observation dropped): not triangulated
+            ok = np.zeros(len(rows), dtype=bool)
+            if seen.any():
+                ok[seen] = self._triangulate(rows[seen], st, without_depth)
+            st.n_triangulation_failed += int(np.count_nonzero(~seen))
+            return ok
         cols, valid = self._compact(mask)
         ok = self._motion_ok(rows, cols, valid, without_depth)
         idx = np.flatnonzero(ok)
@@ -507,6 +514,14 @@ class MsckfFilter:
         spec = self._measurement_spec()
         sigma = c.feature_noise
         n_cl = len(self.clones)
+        usable = self._usable_observations(rows, clone_mask)
+        if usable is not clone_mask:
+            # a feature left with fewer than two observations has nothing to constrain: not an update, not a rejection
+            keep = usable.sum(axis=1) >= 2
+            rows, obs_dof = rows[keep], (obs_dof - (clone_mask.sum(axis=1) - usable.sum(axis=1)))[keep]
+            clone_mask = usable[keep]
+            if len(rows) == 0:
+                return 0
         n_obs = clone_mask.sum(axis=1)
         accepted: list[FeatureBatch] = []
         acc_rows_count: list[np.ndarray] = []
@@ -561,6 +576,19 @@ class MsckfFilter:
         self.P = P_new
         inject_correction(self._initialised(), self.clones, dx)
         return used
+
+    def _usable_observations(self, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``mask`` ((k, C) bool, clone order) less, with ``depth.depth_fills_only_unmeasured``, the observations with
+        a filled depth of the features among ``rows`` that have a measured depth in the window."""
+        if not self.config.depth.depth_fills_only_unmeasured:
+            return mask
+        fs = self.features
+        order = self._order()
+        has = fs.has[rows][:, order]
+        from_map = fs.src[rows][:, order] == DepthSource.DEPTH_MAP
+        filled = fs.depth_filled[rows][:, order]
+        measured = has & from_map & ~filled & np.isfinite(fs.depth[rows][:, order])
+        return mask & ~(has & from_map & filled & measured.any(axis=1, keepdims=True))
 
     def _fallback_drop(self, rr: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """The depth-map observations (features ``rr`` × clone ``slots``, broadcast) that ``depth_fallback`` drops:

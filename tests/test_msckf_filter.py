@@ -364,3 +364,39 @@ def test_depth_shared_rel_sigma_makes_the_filter_less_overconfident_with_per_tra
     _, hi = anees_bounds(runs)
     assert res[0.0][0] > 1.4 * hi, res                   # independent readings: overconfident
     assert res[0.03][0] < 0.95 * res[0.0][0], res        # the shared term: less so
+
+
+def _with_filled_frames(w, shift_px: float, all_filled_every: int = 0):
+    """The world's frames with, for tracks ``id % 3 == 0``, every other observation flagged *filled* and moved by
+    ``shift_px`` (the pixel by that many px, the depth by shift_px × 10 %: what a point inside SGBM's hole gets), the
+    rest measured; with ``all_filled_every`` > 0, tracks ``id % all_filled_every == 1`` filled in every frame (and
+    moved the same way)."""
+    from dataclasses import replace
+    out = []
+    for k, f in enumerate(w.frames):
+        mixed = (f.ids % 3 == 0) & (k % 2 == 0)
+        only = (f.ids % all_filled_every == 1) if all_filled_every else np.zeros(len(f.ids), dtype=bool)
+        filled = (mixed | only) & np.isfinite(f.depth_m)
+        c0 = f.cam0_xy + np.where(filled[:, None], shift_px / 351.06, 0.0)
+        z = np.where(filled, f.depth_m * (1.0 + shift_px / 10.0), f.depth_m)
+        out.append(replace(f, cam0_xy=c0, depth_m=z, depth_measured=~filled & np.isfinite(f.depth_m)))
+    return replace(w, frames=out)
+
+
+def test_fills_only_unmeasured_ignores_the_filled_observations_of_measured_tracks():
+    """With ``depth_fills_only_unmeasured`` the filled observations of a track that has a measured depth in the
+    window are not used at all (whatever they hold, the estimate is bit-identical); a track with only filled depths
+    still uses them; without the option both kinds change the estimate."""
+    w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=True, depth_rel_sigma=0.01)
+
+    def run(world, on: bool) -> np.ndarray:
+        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fills_only_unmeasured=on)
+        flt = MsckfFilter(cfg, world.T_cam0_imu, world.T_cam1_cam0)
+        flt.initialize(world.t0, world.R0, world.p0, world.v0, world.b_g0, world.b_a0, 9.81)
+        return np.array([np.r_[p.p_world, p.cov_diag] for _, p in iterate(world, flt) if p is not None])
+
+    a, b = _with_filled_frames(w, 2.0), _with_filled_frames(w, -1.0)
+    assert np.array_equal(run(a, True), run(b, True))           # the mixed tracks' fills are not used
+    assert not np.array_equal(run(a, False), run(b, False))     # … and are without the option
+    c, d = _with_filled_frames(w, 2.0, all_filled_every=7), _with_filled_frames(w, -1.0, all_filled_every=7)
+    assert not np.array_equal(run(c, True), run(d, True))       # a track with only filled depths keeps them
