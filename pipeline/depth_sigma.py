@@ -18,8 +18,7 @@ holes of that kind, and a fill there extrapolates the bordering depths into a re
 anywhere beyond them (measured: :data:`FAR_OPEN_SIGMAS`). :meth:`DepthSigmaModel.filled` drops those fills
 from the valid mask, so the feature there stays monocular, as it is in ``depth-raw``.
 
-With the occlusion-edge rule on (:data:`EDGE_DISPARITY_SIGMAS`; off by default), fills at occlusion edges carry
-no depth either: where the measured disparities
+Fills at occlusion edges carry no depth either (:data:`EDGE_DISPARITY_SIGMAS`): where the measured disparities
 within a tracker's window of a hole differ by more than SGBM's noise explains, the hole is the occlusion SGBM
 leaves at a depth discontinuity, and a corner tracked there is a T-junction of two surfaces whose apparent motion
 no single surface depth describes.
@@ -78,7 +77,8 @@ FAR_OPEN_SIGMAS = 5.0
 #: 1 % / 0 % of the others; a 63-step geodesic reach flags 99 % of the far ones and 6 % / 4 % of those with a 3-D
 #: point / an exact map value; a plain "> 31 px from any measurement" rule would cost 20 % / 15 % of those.
 FAR_OPEN_RADIUS_PX = 63
-#: The occlusion-edge rule (off by default; this is its threshold when on): a filled pixel whose (2r+1)²
+#: The occlusion-edge rule (on by default since stop 41, with the filter's ``depth_fills_only_unmeasured``): a filled
+#: pixel whose (2r+1)²
 #: neighbourhood in the raw map holds measured disparities (``f·B / Z``) spanning more than
 #: ``EDGE_DISPARITY_SIGMAS · √2 · σ_d`` (two measurements further apart than SGBM's own noise explains) sits in the
 #: hole SGBM leaves at a depth discontinuity, and carries no depth. r is the KLT tracker's half window (15 px,
@@ -90,8 +90,11 @@ FAR_OPEN_RADIUS_PX = 63
 #: the consistent tracks only 0.0150 / 0.0148 / 0.0178 m, depth-raw 0.0136 / 0.0144 / 0.0148 m. With the rule (3 σ,
 #: the one setting run) the ladder's `paper` rung goes 0.0211 / 0.0177 / 0.0208 → 0.0143 / 0.0125 / 0.0148 m. But
 #: the pipeline at 120 s (5 seeds, depth-raw 0.086 / 0.135 / 0.169 m) gives `paper` 0.116 / 0.176 / 0.197 →
-#: 0.142 / 0.163 / 0.190 m (rosario-like-01 worse on 5 of 5 seeds): at 120 s fills hurt on consistent tracks too,
-#: hence off. Stop 38's ratio form (31 px, max / min > 1.25) was measured with stop 40's whitening bug.
+#: 0.142 / 0.163 / 0.190 m (rosario-like-01 worse on 5 of 5 seeds): at 120 s the fills of tracks SGBM measures in
+#: other frames hurt too. Together with ``depth_fills_only_unmeasured`` (which leaves those out): 10 s 0.0127 /
+#: 0.0130 / 0.0136 m (better than depth-raw on all three), 120 s 0.107 / 0.163 / 0.172 m (better than before on all
+#: three, still worse than depth-raw on 01 / 02): both on by default. Stop 38's ratio form (31 px, max / min > 1.25)
+#: was measured with stop 40's whitening bug.
 EDGE_DISPARITY_SIGMAS = 3.0
 EDGE_RADIUS_PX = 7
 
@@ -131,7 +134,7 @@ class DepthSigmaModel:
             0 disables it.
         edge_disparity_sigmas, edge_radius_px: the occlusion-edge rule (:data:`EDGE_DISPARITY_SIGMAS`): fills whose
             raw neighbourhood spans more than ``edge_disparity_sigmas · √2 · disparity_sigma_px`` of disparity
-            carry no depth; 0 (default: better at 10 s, worse on rosario-like-01 at 120 s) disables it.
+            carry no depth (default 3, with ``msckf`` ``depth_fills_only_unmeasured``, since stop 41); 0 disables it.
     """
 
     fx_baseline: float
@@ -139,7 +142,7 @@ class DepthSigmaModel:
     fill: dict[str, tuple[float, float, float]] = field(default_factory=lambda: dict(FILL_CALIBRATION))
     far_open_sigmas: float = FAR_OPEN_SIGMAS
     far_open_radius_px: int = FAR_OPEN_RADIUS_PX
-    edge_disparity_sigmas: float = 0.0
+    edge_disparity_sigmas: float = EDGE_DISPARITY_SIGMAS
     edge_radius_px: int = EDGE_RADIUS_PX
 
     @classmethod
@@ -212,8 +215,8 @@ class DepthSigmaModel:
                method: str) -> tuple[np.ndarray, np.ndarray]:
         """What an inpainted map gives the VIO: ``(valid, σ_Z)``, both (H, W).
 
-        ``valid`` is the inpainted map's mask less the fills open to the far field (:meth:`far_open`) and, when
-        enabled, the fills at occlusion edges (:meth:`occlusion_edge`); σ_Z in metres is :meth:`filled_sigma`
+        ``valid`` is the inpainted map's mask less the fills open to the far field (:meth:`far_open`) and the
+        fills at occlusion edges (:meth:`occlusion_edge`); σ_Z in metres is :meth:`filled_sigma`
         (NaN where not valid). ``raw_*``: the raw SGBM map the fill was made from.
         """
         ok, sigma, _, _ = self.filled_detail(depth_m, valid, raw_depth_m, raw_valid, method)
