@@ -400,7 +400,7 @@ class MsckfFilter:
             return np.zeros(0, dtype=bool)
         fs, cl = self.features, self.clones
         order = self._order()
-        mask = self._usable_observations(rows, fs.has[rows][:, order])
+        mask = self._usable_observations(rows)
         seen = mask.any(axis=1)
         if not seen.all():  # nothing left to triangulate from (every observation dropped): not triangulated
             ok = np.zeros(len(rows), dtype=bool)
@@ -514,12 +514,12 @@ class MsckfFilter:
         spec = self._measurement_spec()
         sigma = c.feature_noise
         n_cl = len(self.clones)
-        usable = self._usable_observations(rows, clone_mask)
-        if usable is not clone_mask:
+        if self.config.depth.depth_fills_only_unmeasured:
+            usable = self._usable_observations(rows, clone_mask)
+            dropped = clone_mask.sum(axis=1) - usable.sum(axis=1)
             # a feature left with fewer than two observations has nothing to constrain: not an update, not a rejection
             keep = usable.sum(axis=1) >= 2
-            rows, obs_dof = rows[keep], (obs_dof - (clone_mask.sum(axis=1) - usable.sum(axis=1)))[keep]
-            clone_mask = usable[keep]
+            rows, obs_dof, clone_mask = rows[keep], (obs_dof - dropped)[keep], usable[keep]
             if len(rows) == 0:
                 return 0
         n_obs = clone_mask.sum(axis=1)
@@ -577,14 +577,17 @@ class MsckfFilter:
         inject_correction(self._initialised(), self.clones, dx)
         return used
 
-    def _usable_observations(self, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """``mask`` ((k, C) bool, clone order) less, with ``depth.depth_fills_only_unmeasured``, the observations with
-        a filled depth of the features among ``rows`` that have a measured depth in the window."""
-        if not self.config.depth.depth_fills_only_unmeasured:
-            return mask
+    def _usable_observations(self, rows: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """``mask`` ((k, C) bool, clone order; default: every observation of the features ``rows``) less, with
+        ``depth.depth_fills_only_unmeasured``, the observations with a filled depth of the features that have a
+        measured depth in the window."""
         fs = self.features
         order = self._order()
         has = fs.has[rows][:, order]
+        if mask is None:
+            mask = has
+        if not self.config.depth.depth_fills_only_unmeasured:
+            return mask
         from_map = fs.src[rows][:, order] == DepthSource.DEPTH_MAP
         filled = fs.depth_filled[rows][:, order]
         measured = has & from_map & ~filled & np.isfinite(fs.depth[rows][:, order])

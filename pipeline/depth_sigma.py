@@ -200,7 +200,8 @@ class DepthSigmaModel:
         if self.edge_disparity_sigmas <= 0 or raw_valid.all() or not raw_valid.any():
             return np.zeros(raw_valid.shape, dtype=bool)
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * self.edge_radius_px + 1,) * 2)
-        valid = _bool(raw_valid) & (np.asarray(raw_depth_m) > 0)
+        measured = _bool(raw_valid)
+        valid = measured & (np.asarray(raw_depth_m) > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.float32(self.fx_baseline) / _f32(raw_depth_m)
         # no measured pixel in the window: max −inf (OpenCV's border value −FLT_MAX where the window leaves the
@@ -209,7 +210,7 @@ class DepthSigmaModel:
         d_min = cv2.erode(np.where(valid, d, np.float32(np.inf)), kernel)
         limit = np.float32(self.edge_disparity_sigmas * np.sqrt(2.0) * self.disparity_sigma_px)
         with np.errstate(invalid="ignore", over="ignore"):
-            return ~_bool(raw_valid) & (d_max - d_min > limit)
+            return ~measured & (d_max - d_min > limit)
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:

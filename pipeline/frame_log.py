@@ -133,7 +133,7 @@ class FrameLog:
         return len(self.stamps)
 
     # ---- adding -----------------------------------------------------------------------------------------------
-    def add_fills(self, n_filled_px: int, n_far_open_px: int, n_occlusion_edge_px: int = 0) -> None:
+    def add_fills(self, n_filled_px: int, n_far_open_px: int, n_occlusion_edge_px: int) -> None:
         """Count one frame's inpainted pixels (raw SGBM holes the method filled), how many of them were dropped
         as open to the far field (:meth:`pipeline.depth_sigma.DepthSigmaModel.far_open`) and how many others as
         lying at an occlusion edge (:meth:`~pipeline.depth_sigma.DepthSigmaModel.occlusion_edge`)."""
