@@ -17,7 +17,8 @@ ATE RMSE against the simulator's true antenna positions (SE(3), 20 ms, estimate 
 <cache>/benchmarks/bench_depth_oracle.json). One core: BLAS threads pinned.
 
     .venv/bin/python benchmarks/bench_depth_oracle.py [--presets 02 03] [--seeds 0 1 2] [--duration 10]
-        [--methods telea] [--config '{"depth_row": true}'] [--no-sigma] [--no-stereo] [--track-noise 0.01 0.03]
+        [--methods telea] [--config '{"depth_sigma_scale": 8.2}'] [--no-sigma] [--no-stereo]
+        [--noise-levels 0.005 0.01 0.02 0.03 0.05] [--track-noise 0.01 0.03]
         [--structure] [--only-rungs depth-raw exact-everywhere ...]
 
 ``--structure`` adds diagnostic rungs that keep SGBM's errors at the tracked points but break their structure
@@ -64,6 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fill-edge-sigmas", type=float, default=None,
                     help="the occlusion-edge rule's threshold: drop fills whose raw neighbourhood spans more than this "
                          "many √2·σ_d of disparity (pipeline.depth_sigma.EDGE_DISPARITY_SIGMAS; 0 = rule off)")
+    ap.add_argument("--noise-levels", nargs="+", type=float, default=[0.01, 0.03, 0.10],
+                    help="σ_Z/Z of the exact+N%% rungs (per-frame noise, stated to the filter), e.g. 0.005 0.01 0.03")
     ap.add_argument("--track-noise", nargs="*", type=float, default=[],
                     help="extra rungs: exact depth with one relative error per track, e.g. 0.01 0.03")
     ap.add_argument("--structure", action="store_true",
@@ -86,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     for p in args.presets:
         preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
         src = simulate_cached(preset, duration_s=args.duration, progress=False)
-        rungs = standard_rungs(args.methods, track_noise_levels=args.track_noise)
+        rungs = standard_rungs(args.methods, noise_levels=args.noise_levels, track_noise_levels=args.track_noise)
         if args.structure:
             rungs += structure_rungs()
         if args.only_rungs is not None:

@@ -84,6 +84,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_sigma_at_prediction": "depth",
     "depth_shared_rel_sigma": "depth",
     "depth_fills_only_unmeasured": "depth",
+    "depth_sigma_scale": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

@@ -39,6 +39,7 @@ from msckf.update import (
     inverse_depth_sigma,
     measurement_blocks,
     qr_update,
+    scale_depth_rows,
     schur_information,
     whiten_depth_shared,
     whiten_track_drift,
@@ -435,7 +436,7 @@ class MsckfFilter:
                 depth_w = np.full((k_, 2 * n_), np.nan)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     depth_inv[:, 0::2] = 1.0 / depth
-                    depth_w[:, 0::2] = self.config.update.feature_noise / sig
+                    depth_w[:, 0::2] = self.config.update.feature_noise / (dep.depth_sigma_scale * sig)
             R, t, z, vv, anchor = views_from_clones(cl.R_w_c[slots], cl.p[slots], obs, v_i, self.R_c1_c0,
                                                     self.t_c1_c0)
             a_slot = slots[np.arange(len(idx)), anchor]
@@ -489,22 +490,30 @@ class MsckfFilter:
                                  cols, len(order), depth_sigma=depth_sigma)
         # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other
         raw = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
+        # the update weighs a depth reading at depth_sigma_scale × its σ (as the pixel rows are weighed at the
+        # inflated feature_noise); the χ² gate tests it at its own σ
+        k_sig = self.config.depth.depth_sigma_scale
+        own = raw
+        raw = scale_depth_rows(own, 1.0 / k_sig)
         track = np.full(slots.shape, np.sqrt(self.config.depth.depth_track_bias))   # 0 (default): no shared term
         s_gate, s_upd = self.config.update.gate_depth_scale, self.config.depth.depth_shared_rel_sigma
         if (s_gate <= 0.0 and s_upd <= 0.0) or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
             b = whiten_depth_shared(raw, track)
-            return b, b
+            return b, (b if own is raw else whiten_depth_shared(own, track))
         with np.errstate(divide="ignore", invalid="ignore"):
-            # σ of a shared relative error s in units of the reading's own inverse-depth σ: (s / Z) / σ_ρ
+            # σ of a shared relative error s in units of a reading's inverse-depth σ: (s / Z) / (k · σ_ρ)
             sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
             ok = np.isfinite(sig_rho) & (sig_rho > 0) & (depth > 0)
 
-            def with_shared(s: float) -> FeatureBatch:
+            def with_shared(base: FeatureBatch, s: float, k: float) -> FeatureBatch:
                 # a zero term adds nothing (whiten_depth_shared returns the batch when every loading is 0)
-                return whiten_depth_shared(raw, np.stack([track, np.where(ok, s / (depth * sig_rho), 0.0)], axis=-1))
+                return whiten_depth_shared(base, np.stack([track, np.where(ok, s / (depth * k * sig_rho), 0.0)],
+                                                          axis=-1))
 
-            b = with_shared(s_upd)
-            return b, (with_shared(s_gate) if s_gate > 0.0 else b)
+            b = with_shared(raw, s_upd, k_sig)
+            if s_gate > 0.0:
+                return b, with_shared(own, s_gate, 1.0)
+            return b, (b if own is raw else with_shared(own, s_upd, 1.0))
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""

@@ -43,7 +43,7 @@ from msckf.state import IMU_DIM, CloneStore, ImuState
 
 __all__ = ["MeasurementSpec", "FeatureBatch", "inverse_depth_sigma", "measurement_blocks", "gating_chi2",
            "chi2_threshold", "schur_information", "whiten_track_drift", "whiten_depth_track", "whiten_depth_shared",
-           "downweight_features",
+           "scale_depth_rows", "downweight_features",
            "ekf_update_information",
            "null_space_project", "null_space_project_active", "qr_update", "inject_correction",
            "find_redundant_clones", "bucket_by_length"]
@@ -448,6 +448,20 @@ def whiten_depth_shared(batch: FeatureBatch, shared: np.ndarray) -> FeatureBatch
     r[:, :, 4] = (Li @ batch.r[:, :, 4][..., None])[..., 0]
     Hf[:, :, 4] = Li @ batch.Hf[:, :, 4]
     return FeatureBatch(batch.pos, batch.Hx, Hf, r, batch.rows, _compose_mix(batch, [(np.arange(n) * R + 4, Li)]))
+
+
+def scale_depth_rows(batch: FeatureBatch, factor: float) -> FeatureBatch:
+    """The batch with its inverse-depth rows (row 4: residual and both Jacobians) multiplied by ``factor``: a depth
+    row whitened to σ_ρ becomes whitened to σ_ρ / ``factor``. Only before :func:`whiten_depth_shared` (whose mix
+    combines depth rows); the pixel-row mix of :func:`whiten_track_drift` leaves row 4 alone, so the scaled raw
+    ``Hx`` row is also the scaled combined row. ``factor`` = 1 or a batch without depth rows returns ``batch``."""
+    if factor == 1.0 or batch.r.size == 0 or batch.r.shape[2] < 5:
+        return batch
+    r, Hf, Hx = batch.r.copy(), batch.Hf.copy(), batch.Hx.copy()
+    r[:, :, 4] *= factor
+    Hf[:, :, 4] *= factor
+    Hx[:, :, 4] *= factor
+    return FeatureBatch(batch.pos, Hx, Hf, r, batch.rows, batch.mix)
 
 
 def downweight_features(batch: FeatureBatch, gamma_per_dof: np.ndarray, k: float) -> FeatureBatch:

@@ -14,7 +14,8 @@ the depth front end's tight gate (``gate_noise`` 0.0005 + ``gate_depth_scale`` 0
 4ba30d7e99b0836a, and ``depth_shared_rel_sigma`` (stop 40, off) from 3be352d36cc9280c / 0e3b5d7e170fff13, and
 ``stereo_feature_noise`` / ``stereo_track_drift_psd`` (stop 40, on) from 3eaf00189941e3c7 / 754befe52ccf5ad5, and
 ``depth_fills_only_unmeasured`` (stop 41, off) from ba2dc77ce0aa2753 / 6dffeb4866423741, and its default turned on
-(stop 41) from eb145e291d11ca40 / 3e1cce0ee7ef4dea.
+(stop 41) from eb145e291d11ca40 / 3e1cce0ee7ef4dea, and ``depth_sigma_scale`` (stop 42, 1 = off) from
+818c24d0a25cbc79 / b479da2117abe716.
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "818c24d0a25cbc79"
+DEFAULT_MSCKF_HASH = "65ee772b8395b1d4"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "b479da2117abe716"
+DEFAULT_JOB_KEY = "981d481161a82396"
 
 
 def _job_key(msckf: dict) -> str:

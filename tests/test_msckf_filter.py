@@ -400,3 +400,40 @@ def test_fills_only_unmeasured_ignores_the_filled_observations_of_measured_track
     assert not np.array_equal(run(a, False), run(b, False))     # … and are without the option
     c, d = _with_filled_frames(w, 2.0, all_filled_every=7), _with_filled_frames(w, -1.0, all_filled_every=7)
     assert not np.array_equal(run(c, True), run(d, True))       # a track with only filled depths keeps them
+
+
+def _depth_run(world, stop_after: int | None = None, **cfg_overrides):
+    """Poses (position + covariance diagonal) and every frame's gate statistics of one run on ``world``."""
+    cfg = matched_config(**cfg_overrides)
+    flt = MsckfFilter(cfg, world.T_cam0_imu, world.T_cam1_cam0)
+    flt.initialize(world.t0, world.R0, world.p0, world.v0, world.b_g0, world.b_a0, 9.81)
+    poses, gammas = [], []
+    for _, p in iterate(world, flt, stop_after=stop_after):
+        if p is not None:
+            poses.append(np.r_[p.p_world, p.cov_diag])
+        gammas.append(np.concatenate(flt.last_stats.gate_gamma) if flt.last_stats.gate_gamma else np.zeros(0))
+    return np.array(poses), gammas
+
+
+def test_depth_sigma_scale_weighs_depth_rows_at_k_sigma_in_the_update_only():
+    """``depth_sigma_scale`` k: the update (and triangulation) weigh every depth reading as if its σ were k × its
+    own — the same estimate as a filter told k × σ, when neither gates anything — while the χ² gate tests the
+    reading at its own σ (the first update's γ's are those of k = 1, not those of the filter told k × σ)."""
+    w = make_world(seed=4, duration=2.0, max_features=100, depth_mode=True, depth_rel_sigma=0.01)
+    common = dict(depth_motion_rel_sigma=10.0, gate_depth_scale=0.0)
+    no_gate = dict(common, chi2_quantile=1.0 - 1e-12)
+    scaled, _ = _depth_run(w, depth_inv_sigma=1e-3, depth_rel_sigma=0.01, depth_sigma_scale=4.0, **no_gate)
+    told, _ = _depth_run(w, depth_inv_sigma=4e-3, depth_rel_sigma=0.04, **no_gate)
+    own, _ = _depth_run(w, depth_inv_sigma=1e-3, depth_rel_sigma=0.01, **no_gate)
+    assert len(scaled) > 10
+    np.testing.assert_allclose(scaled, told, rtol=1e-6, atol=1e-9)
+    assert not np.allclose(scaled, own, rtol=1e-6, atol=1e-9)
+    # the gate: γ at the first update with a depth row is computed with the reading's own σ
+    _, g_scaled = _depth_run(w, stop_after=12, depth_inv_sigma=1e-3, depth_rel_sigma=0.01, depth_sigma_scale=4.0,
+                             **common)
+    _, g_own = _depth_run(w, stop_after=12, depth_inv_sigma=1e-3, depth_rel_sigma=0.01, **common)
+    _, g_told = _depth_run(w, stop_after=12, depth_inv_sigma=4e-3, depth_rel_sigma=0.04, **common)
+    first = next(i for i, g in enumerate(g_own) if len(g))
+    # equal up to the triangulated linearisation point (its depth is weighed at k σ: measured 1.5e-4 apart)
+    np.testing.assert_allclose(g_scaled[first], g_own[first], rtol=1e-3)
+    assert np.all(np.abs(g_told[first] / g_own[first] - 1.0) > 0.05)
