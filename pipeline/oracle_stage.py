@@ -84,6 +84,21 @@ def check_line(seq: str, c: Mapping[str, Any]) -> str:
             f"{'yes' if c['exact_within_10pct_of_stereo'] else 'no'})")
 
 
+#: Shown under a ladder whose noise chain is violated (a less noisy depth doing worse): the known cause (stop 42).
+NOISE_CHAIN_NOTE = ("A violation in the noise chain (a less noisy depth doing worse) is what the update's relative "
+                    "weighting predicts: it weighs the pixels at 2.5 px (`feature_noise`, ≈ 8 × their measured "
+                    "error) and a depth at its stated σ, so a depth is over-weighted relative to the pixels and the "
+                    "fused error peaks where the depth's σ matches the inflated pixel σ. `depth_sigma_scale: 8.2` "
+                    "(off by default) weighs depth like the pixels and removes that hump at 10 s, but costs at 120 s "
+                    "(README, What we measured).")
+
+
+def _noise_chain_violation(violation: str, results: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> bool:
+    """Whether a :func:`ladder_verdict` violation line names a rung of the ``noise`` chain as the worse one."""
+    return any(violation.startswith(f"{seq}: {name} (")
+               for seq, rungs in results.items() for name, r in rungs.items() if r.get("chain") == "noise")
+
+
 @dataclass(frozen=True)
 class LadderResult:
     """The ladder of several simulated sequences.
@@ -154,6 +169,8 @@ class LadderResult:
         for seq, c in ladder_checks(self.results).items():
             out.append(f"- {check_line(seq, c)}")
         out += [f"- violation: {b}" for b in bad]
+        if any(_noise_chain_violation(b, self.results) for b in bad):
+            out += ["", NOISE_CHAIN_NOTE]
         if self.code_version:
             out += ["", f"Computed with `{self.code_version}` in {self.wall_s / 60:.1f} min "
                         "(`benchmarks/bench_depth_oracle.py` runs the same ladder with every option)."]

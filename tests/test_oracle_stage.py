@@ -11,6 +11,7 @@ from eval.synthetic import synthetic_runset
 from pipeline.oracle_stage import (
     LADDER_JSON,
     LADDER_MD,
+    NOISE_CHAIN_NOTE,
     LadderResult,
     read_ladder_markdown,
     remove_ladder,
@@ -41,7 +42,7 @@ BAD = _res({"exact-everywhere": [0.030, 0.031, 0.032], "exact+1%": [0.011, 0.012
 def test_ladder_section_states_the_verdict_the_checks_and_each_violation():
     good = LadderResult({"seq-a": GOOD}, (0, 1, 2), ("paper",), 10.0, code_version="git:abc")
     md = good.markdown()
-    assert "**ladder monotone: yes**" in md and "violation" not in md
+    assert "**ladder monotone: yes**" in md and "violation" not in md and NOISE_CHAIN_NOTE not in md
     assert "| exact-everywhere | 0.0103 |" in md                       # mean over the three seeds
     assert "seq-a: exact-everywhere 0.0103 m vs depth-raw 0.0183 m vs stereo 0.0100 m" in md
     assert "(exact ≤ raw: yes; within 10 % of stereo: yes)" in md and "`git:abc`" in md
@@ -51,6 +52,7 @@ def test_ladder_section_states_the_verdict_the_checks_and_each_violation():
     assert "| exact-everywhere | 0.0103 | 0.0310 |" in md                # one column per sequence
     assert "0.0185 (1 failed)" in md                                   # mean of the runs that finished, failures named
     assert "- violation: seq-b: exact-everywhere" in md and "within 10 % of stereo: no" in md
+    assert NOISE_CHAIN_NOTE in md                                       # exact-everywhere worse than exact+1 %
     assert md.index("| exact-everywhere") < md.index("| depth-raw |") < md.index("| stereo |")
 
 
