@@ -488,18 +488,19 @@ class MsckfFilter:
         raw = measurement_blocks(spec, fs.pos[rows], cl.R_w_c[slots], cl.p[slots], cl.R_c_w_null[slots],
                                  cl.p_null[slots], obs, depth, use_depth_row, valid,
                                  cols, len(order), depth_sigma=depth_sigma)
-        # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other
-        raw = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
-        # the update weighs a depth reading at depth_sigma_scale × its σ (as the pixel rows are weighed at the
-        # inflated feature_noise); the χ² gate tests it at its own σ
+        # the drift model whitens the pixel rows, the shared-error terms the depth rows: independent of each other;
+        # ``own``: every depth row at its reading's own σ, as the χ² gate tests it
+        own = whiten_track_drift(raw, cl.times[slots], valid, spec.feature_noise, self.config.update.track_drift_psd)
+        # the update weighs a depth reading at depth_sigma_scale × its σ (as it weighs the pixels at the inflated
+        # feature_noise); with 1 (default) it is the same batch
         k_sig = self.config.depth.depth_sigma_scale
-        own = raw
-        raw = scale_depth_rows(own, 1.0 / k_sig)
+        upd = scale_depth_rows(own, 1.0 / k_sig)
         track = np.full(slots.shape, np.sqrt(self.config.depth.depth_track_bias))   # 0 (default): no shared term
-        s_gate, s_upd = self.config.update.gate_depth_scale, self.config.depth.depth_shared_rel_sigma
-        if (s_gate <= 0.0 and s_upd <= 0.0) or raw.r.shape[2] < 5 or not raw.rows[:, :, 4].any():
-            b = whiten_depth_shared(raw, track)
-            return b, (b if own is raw else whiten_depth_shared(own, track))
+        s_upd = self.config.depth.depth_shared_rel_sigma
+        s_gate = self.config.update.gate_depth_scale or s_upd      # the gate's shared term, else the update's
+        if s_gate <= 0.0 or own.r.shape[2] < 5 or not own.rows[:, :, 4].any():
+            b = whiten_depth_shared(upd, track)
+            return b, (b if upd is own else whiten_depth_shared(own, track))
         with np.errstate(divide="ignore", invalid="ignore"):
             # σ of a shared relative error s in units of a reading's inverse-depth σ: (s / Z) / (k · σ_ρ)
             sig_rho = inverse_depth_sigma(depth, depth_sigma, spec.depth_inv_sigma, spec.depth_rel_sigma)
@@ -510,10 +511,8 @@ class MsckfFilter:
                 return whiten_depth_shared(base, np.stack([track, np.where(ok, s / (depth * k * sig_rho), 0.0)],
                                                           axis=-1))
 
-            b = with_shared(raw, s_upd, k_sig)
-            if s_gate > 0.0:
-                return b, with_shared(own, s_gate, 1.0)
-            return b, (b if own is raw else with_shared(own, s_upd, 1.0))
+            b = with_shared(upd, s_upd, k_sig)
+            return b, (b if upd is own and s_gate == s_upd else with_shared(own, s_gate, 1.0))
 
     def _update(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, st: FrameStats) -> int:
         """Gate and apply one EKF update with the given features; returns how many were used."""

@@ -383,25 +383,6 @@ def _with_filled_frames(w, shift_px: float, all_filled_every: int = 0):
     return replace(w, frames=out)
 
 
-def test_fills_only_unmeasured_ignores_the_filled_observations_of_measured_tracks():
-    """With ``depth_fills_only_unmeasured`` the filled observations of a track that has a measured depth in the
-    window are not used at all (whatever they hold, the estimate is bit-identical); a track with only filled depths
-    still uses them; without the option both kinds change the estimate."""
-    w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=True, depth_rel_sigma=0.01)
-
-    def run(world, on: bool) -> np.ndarray:
-        cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fills_only_unmeasured=on)
-        flt = MsckfFilter(cfg, world.T_cam0_imu, world.T_cam1_cam0)
-        flt.initialize(world.t0, world.R0, world.p0, world.v0, world.b_g0, world.b_a0, 9.81)
-        return np.array([np.r_[p.p_world, p.cov_diag] for _, p in iterate(world, flt) if p is not None])
-
-    a, b = _with_filled_frames(w, 2.0), _with_filled_frames(w, -1.0)
-    assert np.array_equal(run(a, True), run(b, True))           # the mixed tracks' fills are not used
-    assert not np.array_equal(run(a, False), run(b, False))     # … and are without the option
-    c, d = _with_filled_frames(w, 2.0, all_filled_every=7), _with_filled_frames(w, -1.0, all_filled_every=7)
-    assert not np.array_equal(run(c, True), run(d, True))       # a track with only filled depths keeps them
-
-
 def _depth_run(world, stop_after: int | None = None, **cfg_overrides):
     """Poses (position + covariance diagonal) and every frame's gate statistics of one run on ``world``."""
     cfg = matched_config(**cfg_overrides)
@@ -413,6 +394,22 @@ def _depth_run(world, stop_after: int | None = None, **cfg_overrides):
             poses.append(np.r_[p.p_world, p.cov_diag])
         gammas.append(np.concatenate(flt.last_stats.gate_gamma) if flt.last_stats.gate_gamma else np.zeros(0))
     return np.array(poses), gammas
+
+
+def test_fills_only_unmeasured_ignores_the_filled_observations_of_measured_tracks():
+    """With ``depth_fills_only_unmeasured`` the filled observations of a track that has a measured depth in the
+    window are not used at all (whatever they hold, the estimate is bit-identical); a track with only filled depths
+    still uses them; without the option both kinds change the estimate."""
+    w = make_world(seed=3, duration=3.0, max_features=120, depth_mode=True, depth_rel_sigma=0.01)
+
+    def run(world, on: bool) -> np.ndarray:
+        return _depth_run(world, depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fills_only_unmeasured=on)[0]
+
+    a, b = _with_filled_frames(w, 2.0), _with_filled_frames(w, -1.0)
+    assert np.array_equal(run(a, True), run(b, True))           # the mixed tracks' fills are not used
+    assert not np.array_equal(run(a, False), run(b, False))     # … and are without the option
+    c, d = _with_filled_frames(w, 2.0, all_filled_every=7), _with_filled_frames(w, -1.0, all_filled_every=7)
+    assert not np.array_equal(run(c, True), run(d, True))       # a track with only filled depths keeps them
 
 
 def test_depth_sigma_scale_weighs_depth_rows_at_k_sigma_in_the_update_only():
