@@ -39,7 +39,7 @@ from msckf.frontend import DepthFrontend
 from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, sample_depth
 from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
-from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses
+from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "Rung", "standard_rungs",
            "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
@@ -497,14 +497,18 @@ class NeesAccumulator:
 
     ``add(filter, stamp_s)`` after each pose the filter returns; ``stats()`` gives ``nees_position_mean`` and
     ``nees_orientation_mean`` (time averages over the frames within the truth's span where the NEES is defined;
-    NaN when there were none) and ``nees_undefined_frames`` (frames whose covariance block was singular, e.g. the
-    zero position covariance right after an online reset: left out of the means, counted here).
+    NaN when there were none; 3 for a consistent filter), the orientation's split ``nees_tilt_mean`` (roll / pitch,
+    2 for a consistent filter) and ``nees_yaw_mean`` (1; :func:`pipeline.oracle_truth.tilt_yaw_nees`), and
+    ``nees_undefined_frames`` (frames whose covariance block was singular, e.g. the zero position covariance right
+    after an online reset: left out of the means, counted here).
     """
 
     def __init__(self, truth: TrueImuPoses | None) -> None:
         self._anchored = AnchoredTruth(truth) if truth is not None else None
         self.position: list[float] = []
         self.orientation: list[float] = []
+        self.tilt: list[float] = []
+        self.yaw: list[float] = []
         self.undefined = 0
 
     def add(self, filt: MsckfFilter, stamp_s: float) -> None:
@@ -517,11 +521,15 @@ class NeesAccumulator:
             return
         self.position.append(e_p)
         self.orientation.append(e_t)
+        tilt, yaw = tilt_yaw_nees(filt.state.R_w_i, filt.P[0:3, 0:3], R_true)
+        self.tilt.append(tilt)
+        self.yaw.append(yaw)
 
     def stats(self) -> dict[str, float]:
         def mean(v: list[float]) -> float:
-            return float(np.mean(v)) if v else float("nan")
+            return float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
         return {"nees_position_mean": mean(self.position), "nees_orientation_mean": mean(self.orientation),
+                "nees_tilt_mean": mean(self.tilt), "nees_yaw_mean": mean(self.yaw),
                 "nees_undefined_frames": float(self.undefined)}
 
 

@@ -30,7 +30,7 @@ from pipeline.depth_oracle import (
 )
 from pipeline.depth_sigma import DepthSigmaModel
 from pipeline.inpaint_stage import InpaintParams, inpainted_stream
-from pipeline.oracle_truth import TrueImuPoses
+from pipeline.oracle_truth import TrueImuPoses, imu_without_true_acc_bias
 from pipeline.run_job import feed_imu_until, lever_arms_from_tf
 from pipeline.sim.sequence import SimulatedSequence
 
@@ -39,13 +39,16 @@ __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference",
 
 def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                    seeds: Iterable[int], max_frames: int | None = None,
-                   sigma_overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                   sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False) -> dict[str, Any]:
     """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
 
     Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
     reach the front end as a depth-inpainted run gets them (:meth:`DepthSigmaModel.filled`). ``sigma_overrides``:
     fields of the rig's :class:`DepthSigmaModel` replaced for the ablations, e.g. ``{"far_open_radius_px": 0}`` (the
     far-field rule off: every fill kept) or ``{"edge_disparity_sigmas": 0}`` (the occlusion-edge rule off).
+    ``true_acc_bias``: the back ends get the IMU with the simulator's accelerometer bias removed
+    (:func:`pipeline.oracle_truth.imu_without_true_acc_bias`; the tracks are recorded from the bag's IMU as before);
+    run them with :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`.
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
@@ -94,6 +97,8 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
                             {m: inp_provider(m) for m in methods})
         truth_stats[seed] = true_track_depths(log, rig.K_rect, T_world_rect, exact_provider,
                                               config.frontend.min_depth_m, config.frontend.max_depth_m)
+        if true_acc_bias:
+            log.imu = imu_without_true_acc_bias(log.imu, truth)
         logs[seed] = log
     lever = lever_arms_from_tf(seq).get("lever_arm_imu")
     return {"logs": logs, "rig": rig, "gt": str(sim.gt_antenna_true_path), "lever": lever,
@@ -149,7 +154,8 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
 def _mean_nees(stats: Sequence[dict[str, Any]]) -> dict[str, float]:
     """The seeds' mean of each run's time-averaged NEES (runs that did not diverge; NaN without truth)."""
     out: dict[str, float] = {}
-    for key, name in (("nees_position_mean", "nees_position"), ("nees_orientation_mean", "nees_orientation")):
+    for key, name in (("nees_position_mean", "nees_position"), ("nees_orientation_mean", "nees_orientation"),
+                      ("nees_tilt_mean", "nees_tilt"), ("nees_yaw_mean", "nees_yaw")):
         v = [s[key] for s in stats if np.isfinite(s.get(key, np.nan))]
         out[name] = float(np.mean(v)) if v else float("nan")
     return out
@@ -199,8 +205,9 @@ def default_config(overrides: dict[str, Any] | None = None) -> MsckfConfig:
 
 
 def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], prepared: dict[str, Any],
-                     max_frames: int | None = None) -> dict[str, Any]:
-    """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs)."""
+                     max_frames: int | None = None, true_acc_bias: bool = False) -> dict[str, Any]:
+    """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs); with
+    ``true_acc_bias`` fed the IMU without the simulator's accelerometer bias, as :func:`prepare_oracle`."""
     from eval.trajectory import Trajectory
     from msckf.errors import FilterDivergedError
     from msckf.vio import Msckf
@@ -208,6 +215,8 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
     imu = seq.imu_array()
+    if true_acc_bias:
+        imu = imu_without_true_acc_bias(imu, sim.truth)
     ate: dict[int, float] = {}
     failed: dict[int, str] = {}
     gamma_medians: list[float] = []

@@ -41,10 +41,10 @@ def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:
 
 def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> list[str]:
     """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
-    carry a depth, the χ² gate's median γ/dof, the NEES of position / orientation where measured (3 = consistent),
-    features gated out, depth fall-backs, failed runs."""
-    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | NEES p / θ | gated out "
-             "| depth fallback | failed |",
+    carry a depth, the χ² gate's median γ/dof, the NEES of position / orientation where measured (3 = consistent;
+    the orientation's tilt / yaw split in brackets: 2 / 1), features gated out, depth fall-backs, failed runs."""
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | NEES p / θ (tilt / yaw) "
+             "| gated out | depth fallback | failed |",
              "|---|---|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]
@@ -59,9 +59,14 @@ def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> li
 
 
 def _nees_cell(r: Mapping[str, Any]) -> str:
-    """``p / θ`` NEES means of a rung (3 = consistent), or empty where not measured."""
+    """``p / θ`` NEES means of a rung (3 = consistent), followed by θ's split ``(tilt / yaw)`` (2 / 1 = consistent)
+    where measured, or empty where nothing was measured."""
     p, t = r.get("nees_position", float("nan")), r.get("nees_orientation", float("nan"))
-    return f"{p:.1f} / {t:.1f}" if np.isfinite(p) or np.isfinite(t) else ""
+    if not (np.isfinite(p) or np.isfinite(t)):
+        return ""
+    tilt, yaw = r.get("nees_tilt", float("nan")), r.get("nees_yaw", float("nan"))
+    split = f" ({tilt:.1f} / {yaw:.1f})" if np.isfinite(tilt) or np.isfinite(yaw) else ""
+    return f"{p:.1f} / {t:.1f}{split}"
 
 
 def ladder_checks(results: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> dict[str, dict[str, Any]]:
@@ -154,8 +159,9 @@ class LadderResult:
         if any(c for cells in nees_cells.values() for c in cells):
             nees_lines = ["", "NEES of the IMU position / orientation against the truth (time average over each run, "
                           "mean over seeds; χ²(3): **3 when the filter's covariance matches its error**, above it "
-                          "the filter is overconfident; truth anchored at each run's first pose in yaw and "
-                          "position only):", "", head, "|---|" + "---|" * len(seqs),
+                          "the filter is overconfident; in brackets the orientation's tilt (roll / pitch, χ²(2): 2) "
+                          "and yaw (χ²(1): 1); truth anchored at each run's first pose in yaw and position only):",
+                          "", head, "|---|" + "---|" * len(seqs),
                           *(f"| {n} | " + " | ".join(c) + " |" for n, c in nees_cells.items())]
         ok, bad = self.verdict
         dur = f"{self.duration_s:g} s sequences, " if self.duration_s else ""
@@ -180,14 +186,17 @@ class LadderResult:
 def sequence_ladder(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                     seeds: Sequence[int], *, rungs: list[Rung] | None = None, use_sigma: bool = True,
                     stereo: bool = True, max_frames: int | None = None,
-                    sigma_overrides: Mapping[str, Any] | None = None
+                    sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False
                     ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
     """The ladder of one simulated sequence folder: (rung → stats, extra). ``rungs`` default to
-    :func:`standard_rungs` of ``methods``; ``stereo`` adds the stereo front end on the same seeds."""
-    prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames, sigma_overrides=sigma_overrides)
+    :func:`standard_rungs` of ``methods``; ``stereo`` adds the stereo front end on the same seeds;
+    ``true_acc_bias``: every back end fed the IMU without the simulator's accelerometer bias (``prepare_oracle``;
+    ``config`` should pin the bias, :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`)."""
+    prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames, sigma_overrides=sigma_overrides,
+                          true_acc_bias=true_acc_bias)
     res = run_ladder(prep, config, rungs=rungs or standard_rungs(methods), use_sigma=use_sigma)
     if stereo:
-        res["stereo"] = stereo_reference(sim_dir, config, seeds, prep, max_frames)
+        res["stereo"] = stereo_reference(sim_dir, config, seeds, prep, max_frames, true_acc_bias=true_acc_bias)
     extra = {"truth": prep["truth_stats"], "depth_error_at_tracked_points": prep["depth_errors"]}
     return res, extra
 

@@ -16,7 +16,11 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-__all__ = ["TrueImuPoses", "AnchoredTruth"]
+__all__ = ["TrueImuPoses", "AnchoredTruth", "tilt_yaw_nees", "imu_without_true_acc_bias", "PINNED_ACC_BIAS"]
+
+#: MSCKF overrides for runs fed :func:`imu_without_true_acc_bias`: the filter starts at the (now zero) true bias
+#: and keeps it there (initial variance 0, random walk 1e-9 m/s³/√Hz).
+PINNED_ACC_BIAS: dict[str, float] = {"acc_bias_cov": 0.0, "acc_bias_noise": 1e-9}
 
 
 @dataclass(frozen=True)
@@ -80,3 +84,37 @@ class AnchoredTruth:
             self._R_W_E = Rotation.from_rotvec([0.0, 0.0, np.arctan2(M[1, 0], M[0, 0])]).as_matrix()
             self._t_W_E = np.asarray(p_w_est, dtype=np.float64) - self._R_W_E @ p_E
         return self._R_W_E @ R_E, self._R_W_E @ p_E + self._t_W_E
+
+
+def tilt_yaw_nees(R_w_i_est: np.ndarray, P_theta: np.ndarray, R_w_i_true: np.ndarray) -> tuple[float, float]:
+    """The orientation NEES split into tilt (roll / pitch against gravity) and yaw.
+
+    ``R_w_i_est`` / ``R_w_i_true`` (3, 3) map IMU-frame vectors into the run's world frame (z up); ``P_theta`` (3, 3)
+    the covariance of the filter's local orientation error θ (rad², ``R_true = R_est Exp(θ)``, IMU frame). The error
+    and its covariance are turned into the world frame (``R_est θ``): the x / y part is the tilt, χ²(2) for a
+    consistent filter (mean 2), the z part the yaw, χ²(1) (mean 1). A VIO observes tilt only through the
+    accelerometer, where a tilt error can hide behind an accelerometer-bias error while the robot drives straight
+    and level; yaw it cannot observe at all. NaN where the block is singular.
+    """
+    theta = Rotation.from_matrix(np.asarray(R_w_i_est).T @ np.asarray(R_w_i_true)).as_rotvec()
+    e_w = np.asarray(R_w_i_est) @ theta
+    C_w = np.asarray(R_w_i_est) @ np.asarray(P_theta) @ np.asarray(R_w_i_est).T
+    try:
+        tilt = float(e_w[:2] @ np.linalg.solve(C_w[:2, :2], e_w[:2]))
+    except np.linalg.LinAlgError:
+        tilt = float("nan")
+    yaw = float(e_w[2] ** 2 / C_w[2, 2]) if C_w[2, 2] > 0 else float("nan")
+    return tilt, yaw
+
+
+def imu_without_true_acc_bias(imu: np.ndarray, truth: Mapping[str, np.ndarray]) -> np.ndarray:
+    """A copy of the IMU array ``(N, 7)`` (t s, gyro rad/s ×3, accel m/s² ×3) with the simulator's true
+    accelerometer bias (``truth["bias_accel"]`` at ``truth["imu_stamp_ns"]``, linearly interpolated, m/s², IMU
+    frame) subtracted: an oracle input for runs configured with :data:`PINNED_ACC_BIAS`, which separates what the
+    accelerometer-bias estimate costs from what the depth costs (noise and vibration stay in the samples)."""
+    out = np.array(imu, dtype=np.float64, copy=True)
+    t_true = np.asarray(truth["imu_stamp_ns"], dtype=np.float64) / 1e9
+    bias = np.asarray(truth["bias_accel"], dtype=np.float64)
+    for j in range(3):
+        out[:, 4 + j] -= np.interp(out[:, 0], t_true, bias[:, j])
+    return out

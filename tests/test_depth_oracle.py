@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from eval.trajectory import read_tum
-from pipeline.depth_oracle import Rung, TrackedFrame, TrackLog, run_backend, true_track_depths
+from pipeline.depth_oracle import Rung, TrackedFrame, TrackLog, run_backend, standard_rungs, true_track_depths
 from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder
 
 K = np.array([[350.0, 0.0, 336.0], [0.0, 350.0, 188.0], [0.0, 0.0, 1.0]])
@@ -104,6 +104,30 @@ def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_
     assert set(res) >= {"depth-raw", "exact-everywhere", "exact+10%"} and not res["depth-raw"]["failed"]
     # every rung that ran has the NEES of its pose against the simulator's truth
     assert all(np.isfinite(r["nees_position"]) and r["nees_position"] > 0 for r in res.values() if r["ate"])
+    assert all(np.isfinite(r["nees_tilt"]) and np.isfinite(r["nees_yaw"]) for r in res.values() if r["ate"])
+
+
+def test_true_acc_bias_prep_feeds_the_back_end_the_imu_without_the_simulators_bias(sim_cache):
+    """The --true-acc-bias diagnostic: the tracks are the same recording, the back end's accelerometer samples are
+    the bag's minus the simulator's true bias at each stamp, the gyro untouched; pinned, the run still goes."""
+    from pipeline.oracle_truth import PINNED_ACC_BIAS
+    from pipeline.sim.sequence import SimulatedSequence
+    from pipeline.sim_source import simulate_cached
+
+    src = simulate_cached("tiny", cache_root=sim_cache, progress=False)
+    plain = prepare_oracle(src.sim_dir, sim_cache, [], default_config(), [0])
+    config = default_config(PINNED_ACC_BIAS)
+    prep = prepare_oracle(src.sim_dir, sim_cache, [], config, [0], true_acc_bias=True)
+    a, b = plain["logs"][0], prep["logs"][0]
+    truth = SimulatedSequence(src.sim_dir).truth
+    t_true = truth["imu_stamp_ns"] / 1e9
+    bias = np.stack([np.interp(a.imu[:, 0], t_true, truth["bias_accel"][:, j]) for j in range(3)], axis=1)
+    assert np.abs(bias).max() > 1e-3                                     # the tiny preset's IMU has a bias
+    np.testing.assert_allclose(a.imu[:, 4:7] - b.imu[:, 4:7], bias, atol=1e-12)
+    np.testing.assert_array_equal(a.imu[:, :4], b.imu[:, :4])
+    np.testing.assert_array_equal(a.frames[3].xy0, b.frames[3].xy0)
+    res = run_ladder(prep, config, rungs=[r for r in standard_rungs([]) if r.name == "exact-everywhere"])
+    assert not res["exact-everywhere"]["failed"]
 
 
 def test_per_track_noise_rung_gives_each_track_one_error_in_every_frame():

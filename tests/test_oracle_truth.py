@@ -68,3 +68,37 @@ def test_nees_accumulator_leaves_frames_without_a_defined_nees_out_and_counts_th
     st = acc.stats()
     assert st["nees_undefined_frames"] == 1.0
     assert st["nees_position_mean"] == pytest.approx(0.0) and np.isfinite(st["nees_orientation_mean"])
+    assert np.isfinite(st["nees_tilt_mean"]) and np.isfinite(st["nees_yaw_mean"])
+
+
+def test_tilt_yaw_nees_splits_the_orientation_error_in_the_world_frame():
+    """The orientation error is turned into the world frame before it is split: with the estimate yawed by 90°, the
+    IMU's x axis points along world y, so a world-y (tilt) error is weighed by the IMU-x variance and a world-z error
+    by the IMU-z variance; a yaw error leaves the tilt NEES at zero and vice versa."""
+    from pipeline.oracle_truth import tilt_yaw_nees
+
+    R_est = so3_exp(np.array([0.0, 0.0, np.pi / 2]))
+    P = np.diag([0.01 ** 2, 0.04 ** 2, 0.02 ** 2])                      # IMU-frame x, y, z variances, rad²
+    tilt_err = so3_exp(np.array([0.0, 0.03, 0.0])) @ R_est               # 0.03 rad about world y
+    tilt, yaw = tilt_yaw_nees(R_est, P, tilt_err)
+    assert tilt == pytest.approx((0.03 / 0.01) ** 2, rel=1e-6) and yaw == pytest.approx(0.0, abs=1e-12)
+    yaw_err = so3_exp(np.array([0.0, 0.0, 0.05])) @ R_est                # 0.05 rad about world z
+    tilt, yaw = tilt_yaw_nees(R_est, P, yaw_err)
+    assert yaw == pytest.approx((0.05 / 0.02) ** 2, rel=1e-6) and tilt == pytest.approx(0.0, abs=1e-12)
+    assert np.isnan(tilt_yaw_nees(R_est, np.zeros((3, 3)), yaw_err)[1])
+
+
+def test_imu_without_true_acc_bias_subtracts_the_interpolated_bias_from_the_accelerometer_only():
+    from pipeline.oracle_truth import imu_without_true_acc_bias
+
+    t_true = np.array([0.0, 1.0, 2.0])
+    truth = {"imu_stamp_ns": (t_true * 1e9).astype(np.int64),
+             "bias_accel": np.array([[0.0, 0.1, -0.2], [0.2, 0.1, 0.0], [0.4, 0.1, 0.2]])}
+    imu = np.zeros((3, 7))
+    imu[:, 0] = [0.5, 1.0, 1.75]
+    imu[:, 1:4] = 0.3
+    imu[:, 4:7] = [0.0, 0.0, 9.8]
+    out = imu_without_true_acc_bias(imu, truth)
+    np.testing.assert_allclose(out[:, 4:7], [[-0.1, -0.1, 9.9], [-0.2, -0.1, 9.8], [-0.35, -0.1, 9.65]], atol=1e-12)
+    np.testing.assert_array_equal(out[:, :4], imu[:, :4])
+    assert imu[0, 4] == 0.0                                              # the input is not modified
