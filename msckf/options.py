@@ -187,18 +187,18 @@ class UpdateOptions:
             (≈ 12 px) only makes sense paired with S-MSCKF's 5 % gate (msckf.md §0.3: carry the pair over or
             re-tune both; this port re-tunes both). On the simulated feature world (benchmarks/bench_msckf.py) an
             under-stated σ costs far more than an over-stated one (the gate then rejects good features).
-        gate_noise: σ of a normalised image coordinate in the χ² gate only (the pixel rows of
-            ``S = HPHᵀ + R``; a depth row keeps its own σ there), 0 = ``feature_noise``. Default 0.0005 ≈ 0.18 px
-            (since stop 35, with ``gate_depth_scale`` 0.1, 0.03 since stop 43; γ/dof median 0.17–0.25 on the depth variants at 120 s,
+        gate_noise: σ of a normalised image coordinate in the χ² gate only (the pixel rows of ``S = HPHᵀ + R``; a depth
+            row keeps its own σ there), 0 = ``feature_noise``. Default 0.0005 ≈ 0.18 px (since stop 35, with
+            ``gate_depth_scale`` 0.1, 0.03 since stop 43; γ/dof median 0.17–0.25 on the depth variants at 120 s,
             0.04–0.05 at the update's σ). The update keeps ``feature_noise``: a track's pixel errors are mostly a
-            per-track constant and a drift (measured, stop 20) that the feature's position absorbs in the
-            null-space residual the gate sees, but the update counts each observation as independent, so its σ
-            must cover the shared part; the gate's σ must describe the residual it tests. Alone, a tight gate locks
-            the depth out once the filter's scale is a few per cent off (stop 34: ``gate_depth_scale``); with that
-            term and without monocular features (pipeline runs, 120 s, 5 seeds, ATE RMSE m, gate at the update's
-            σ → this default): rosario-like-01 depth-raw 0.129 → 0.086 and ``paper`` 0.189 → 0.121, rosario-like-02
-            0.170 → 0.144 and 0.206 → 0.190, rosario-like-03 0.136 → 0.150 and 0.203 → 0.181; 30 of 30 runs ok.
-            Earlier (with monocular features) a tight gate diverged on rosario-like-03 (README, stops 33–34).
+            per-track constant and a drift (measured, stop 20) that the feature's position absorbs in the null-space
+            residual the gate sees, but the update counts each observation as independent, so its σ must cover the
+            shared part; the gate's σ must describe the residual it tests. Alone, a tight gate locks the depth out once
+            the filter's scale is a few per cent off (stop 34: ``gate_depth_scale``); with that term and without
+            monocular features (pipeline runs, 120 s, 5 seeds, ATE RMSE m, gate at the update's σ → this default):
+            rosario-like-01 depth-raw 0.129 → 0.086 and ``paper`` 0.189 → 0.121, rosario-like-02 0.170 → 0.144 and 0.206
+            → 0.190, rosario-like-03 0.136 → 0.150 and 0.203 → 0.181; 30 of 30 runs ok. Earlier (with monocular
+            features) a tight gate diverged on rosario-like-03 (README, stops 33–34).
         stereo_gate_noise: ``gate_noise`` of the ``stereo`` front end (``msckf.vio.filter_config``), 0 =
             ``gate_noise``. Default 0.0005 ≈ 0.18 px, the stereo front end's own setting since stop 26 (when the
             depth front end still gated at the update's σ) (γ/dof median 0.56 / 0.64 on the 10 s presets 02 / 03, 0.66
