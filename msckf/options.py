@@ -268,7 +268,8 @@ class UpdateOptions:
             0.135 / 0.169 → 0.089 / 0.122 / 0.146 m, ``paper`` 0.107 / 0.163 / 0.172 → 0.099 / 0.124 / 0.144 m
             (rosario-like-01 / 02 / 03; 30 of 30 runs ok); oracle, 10 s, 3 presets × 3 seeds: depth-raw 0.0136 /
             0.0144 / 0.0148 → 0.0139 / 0.0140 / 0.0146, ``paper`` 0.0127 / 0.0130 / 0.0136 → 0.0128 / 0.0126 /
-            0.0133. Stop 34's lock-out happened at an ≈ 8 % scale error; 0.03 covers less of that than 0.1.
+            0.0133. Stop 34's lock-out happened at an ≈ 8 % scale error; 0.03 covers less of that than 0.1, 0
+            (pipeline, 5 seeds: depth-raw 0.079 / 0.124 / 0.151, ``paper`` 0.094 / 0.103 / 0.136) none.
     """
 
     feature_noise: float = 0.007
