@@ -4,7 +4,9 @@ A VIO starts in a world frame of its own (gravity-aligned, its yaw and origin wh
 poses (ENU) are expressed in it by the one yaw + translation that maps the true pose at the run's first estimate
 onto that estimate: the four directions a VIO cannot observe. Roll and pitch are not aligned (they are observable:
 their initial error counts), and nothing is fitted afterwards, so the position and orientation errors grow as the
-filter drifts and are compared with the covariance the filter reports (``msckf.filter.MsckfFilter.pose_nees``).
+filter drifts and are compared with the covariance the filter reports (``msckf.filter.MsckfFilter.pose_nees``;
+:func:`tilt_yaw_nees` splits the orientation part). :func:`imu_without_true_acc_bias` is the oracle IMU input of the
+``--true-acc-bias`` diagnostic.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from functools import cached_property
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
+
+from msckf.rotation import so3_log
 
 __all__ = ["TrueImuPoses", "AnchoredTruth", "tilt_yaw_nees", "imu_without_true_acc_bias", "PINNED_ACC_BIAS"]
 
@@ -96,9 +100,9 @@ def tilt_yaw_nees(R_w_i_est: np.ndarray, P_theta: np.ndarray, R_w_i_true: np.nda
     accelerometer, where a tilt error can hide behind an accelerometer-bias error while the robot drives straight
     and level; yaw it cannot observe at all. NaN where the block is singular.
     """
-    theta = Rotation.from_matrix(np.asarray(R_w_i_est).T @ np.asarray(R_w_i_true)).as_rotvec()
-    e_w = np.asarray(R_w_i_est) @ theta
-    C_w = np.asarray(R_w_i_est) @ np.asarray(P_theta) @ np.asarray(R_w_i_est).T
+    R_est = np.asarray(R_w_i_est, dtype=np.float64)
+    e_w = R_est @ so3_log(R_est.T @ np.asarray(R_w_i_true, dtype=np.float64))   # the error pose_nees tests
+    C_w = R_est @ np.asarray(P_theta) @ R_est.T
     try:
         tilt = float(e_w[:2] @ np.linalg.solve(C_w[:2, :2], e_w[:2]))
     except np.linalg.LinAlgError:
