@@ -41,7 +41,8 @@ from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
 from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
-__all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "Rung", "standard_rungs",
+__all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "snap_to_true_points", "Rung",
+           "standard_rungs",
            "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
 
 
@@ -78,6 +79,10 @@ class TrackLog:
         seed: the front end's seed the tracks were recorded with.
         truth: filled by :func:`true_track_depths`: per frame (N,) true rectified Z, m (NaN outside range).
         truth_source: per frame (N,) uint8: 1 = true-pose triangulation, 2 = exact-map fallback, 0 = none.
+        truth_sigma: per frame (N,) σ of ``truth`` in metres where it is a true-pose triangulation (the point's
+            least-squares covariance at the tracking noise ``pixel_sigma`` of :func:`true_track_depths`, projected
+            on that frame's optical axis; one error shared by every frame of the track), NaN elsewhere.
+        truth_points: track id → (3,) world point of the accepted true-pose triangulations (m).
     """
 
     frames: list[TrackedFrame]
@@ -85,6 +90,8 @@ class TrackLog:
     seed: int = 0
     truth: list[np.ndarray] = field(default_factory=list)
     truth_source: list[np.ndarray] = field(default_factory=list)
+    truth_sigma: list[np.ndarray] = field(default_factory=list)
+    truth_points: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 DepthProvider = Callable[[int], "tuple[np.ndarray, np.ndarray, np.ndarray | None]"]
@@ -143,7 +150,8 @@ def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[i
         max_rms_px: largest RMS reprojection error (px) of a true-pose triangulation to accept it.
         max_rel_sigma: largest σ_Z/Z (at ``pixel_sigma`` px of tracking noise) to accept it.
     Returns:
-        Statistics: fraction of observations with a triangulated truth, with a fallback, with none; median RMS.
+        Statistics: fraction of observations with a triangulated truth, with a fallback, with none; median RMS;
+        median σ_Z/Z of the triangulated truths (``median_sigma_rel``, at ``pixel_sigma``).
     """
     obs_of: dict[int, list[tuple[int, int]]] = {}
     for fi, fr in enumerate(log.frames):
@@ -151,26 +159,32 @@ def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[i
             obs_of.setdefault(int(tid), []).append((fi, j))
     Kinv = np.linalg.inv(K_rect)
     truth = [np.full(len(fr.ids), np.nan) for fr in log.frames]
+    sigma = [np.full(len(fr.ids), np.nan) for fr in log.frames]
     source = [np.zeros(len(fr.ids), np.uint8) for fr in log.frames]
     rms_all: list[float] = []
-    for lst in obs_of.values():
+    points: dict[int, np.ndarray] = {}
+    for tid, lst in obs_of.items():
         if len(lst) < 2:
             continue
         fis = np.array([a for a, _ in lst])
         js = np.array([b for _, b in lst])
         px = np.stack([log.frames[a].rect_px[b] for a, b in lst])
         Ts = np.stack([T_world_rect[log.frames[a].index] for a in fis])
-        p, rms, rel = _triangulate_true(px, Ts, Kinv, K_rect, pixel_sigma)
+        p, rms, cov = _triangulate_true(px, Ts, Kinv, K_rect, pixel_sigma)
         if p is None:
             continue
         rms_all.append(rms)
-        if rms > max_rms_px or rel > max_rel_sigma:
-            continue
         R = Ts[:, :3, :3]
         c = Ts[:, :3, 3]
         z = np.einsum("kij,ki->kj", R, p[None] - c)[:, 2]
-        for a, b, zz in zip(fis, js, z):
+        axis = R[:, :, 2]                                  # each view's optical axis in the world: Z = axis·(p - c)
+        sz = np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", axis, cov, axis), 0.0))
+        if rms > max_rms_px or sz[-1] / z[-1] > max_rel_sigma:
+            continue
+        points[tid] = p
+        for a, b, zz, ss in zip(fis, js, z, sz):
             truth[a][b] = zz
+            sigma[a][b] = ss
             source[a][b] = 1
     if exact_map is not None:
         for fi, fr in enumerate(log.frames):
@@ -183,22 +197,64 @@ def true_track_depths(log: TrackLog, K_rect: np.ndarray, T_world_rect: Mapping[i
     for fi in range(len(truth)):
         out = ~((truth[fi] >= min_depth_m) & (truth[fi] <= max_depth_m))
         truth[fi][out] = np.nan
+        sigma[fi][out] = np.nan
         source[fi][out] = 0
-    log.truth, log.truth_source = truth, source
+    log.truth, log.truth_source, log.truth_sigma = truth, source, sigma
+    log.truth_points = points
     src = np.concatenate(source) if source else np.zeros(0, np.uint8)
+    rel = np.concatenate([s / t for s, t in zip(sigma, truth)]) if sigma else np.zeros(0)
+    rel = rel[np.isfinite(rel)]
     n = max(len(src), 1)
     return {"triangulated": float(np.mean(src == 1)) if len(src) else 0.0,
             "exact_map_fallback": float(np.count_nonzero(src == 2) / n),
             "none": float(np.count_nonzero(src == 0) / n),
-            "median_rms_px": float(np.median(rms_all)) if rms_all else float("nan")}
+            "median_rms_px": float(np.median(rms_all)) if rms_all else float("nan"),
+            "median_sigma_rel": float(np.median(rel)) if len(rel) else float("nan")}
+
+
+def snap_to_true_points(log: TrackLog, K_rect: np.ndarray, R_left: np.ndarray,
+                        T_world_rect: Mapping[int, np.ndarray]) -> int:
+    """Replace the tracked pixels of every truth-triangulated track by the exact projection of its 3-D point.
+
+    A diagnostic (``bench_depth_oracle.py --exact-pixels``): the tracks stay the same features over the same frames,
+    but without KLT's pixel error, so the ladder separates what the *pixels* of the features a depth adds cost
+    from what their *depths* cost. Tracks without a true-pose point (``truth_source`` ≠ 1) keep their pixels. The
+    depth reads recorded at the tracked pixels (``z_rect``) are left as they were. Call after
+    :func:`true_track_depths`.
+
+    Args:
+        K_rect: (3, 3) rectified left intrinsics.
+        R_left: (3, 3) rectification rotation ``p_rect = R_left p_cam0``.
+        T_world_rect: frame index → (4, 4) true pose mapping rectified-left points into the world.
+    Returns:
+        The number of observations replaced.
+    """
+    n = 0
+    for fr in log.frames:
+        sel = np.flatnonzero([int(t) in log.truth_points for t in fr.ids]) if len(fr.ids) else np.zeros(0, int)
+        if len(sel) == 0:
+            continue
+        T = T_world_rect[fr.index]
+        pw = np.stack([log.truth_points[int(fr.ids[j])] for j in sel])
+        p_rect = (pw - T[:3, 3]) @ T[:3, :3]                 # Rᵀ (p − c), row-wise
+        uv = p_rect @ K_rect.T
+        fr.rect_px = fr.rect_px.copy()
+        fr.rect_px[sel] = uv[:, :2] / uv[:, 2:3]
+        p0 = p_rect @ R_left                                 # R_leftᵀ p_rect, row-wise: the raw cam0 frame
+        fr.xy0 = fr.xy0.copy()
+        fr.xy0[sel] = p0[:, :2] / p0[:, 2:3]
+        n += len(sel)
+    return n
 
 
 def _triangulate_true(px: np.ndarray, Ts: np.ndarray, Kinv: np.ndarray, K: np.ndarray, pixel_sigma: float
-                      ) -> tuple[np.ndarray | None, float, float]:
+                      ) -> tuple[np.ndarray | None, float, np.ndarray]:
     """Least-squares point of rays from known poses, refined by Gauss–Newton on the pixel error.
 
-    Returns (point (3,) world or None, RMS reprojection px, σ_Z/Z in the last view).
+    Returns (point (3,) world or None, RMS reprojection px, (3, 3) world covariance of the point in m² at
+    ``pixel_sigma`` px of tracking noise per coordinate).
     """
+    fail = (None, np.inf, np.full((3, 3), np.inf))
     rays = np.concatenate([px, np.ones((len(px), 1))], axis=1) @ Kinv.T
     R = Ts[:, :3, :3]
     c = Ts[:, :3, 3]
@@ -211,13 +267,13 @@ def _triangulate_true(px: np.ndarray, Ts: np.ndarray, Kinv: np.ndarray, K: np.nd
         A += M
         b += M @ ci
     if np.linalg.cond(A) > 1e10:
-        return None, np.inf, np.inf
+        return fail
     p = np.linalg.solve(A, b)
     H = np.eye(3)
     for _ in range(5):
         pc = np.einsum("kji,kj->ki", R, p[None] - c)             # R^T (p - c)
         if np.any(pc[:, 2] <= 0.05):
-            return None, np.inf, np.inf
+            return fail
         proj = (pc @ K.T)
         uv = proj[:, :2] / proj[:, 2:3]
         r = (uv - px).reshape(-1)
@@ -233,23 +289,21 @@ def _triangulate_true(px: np.ndarray, Ts: np.ndarray, Kinv: np.ndarray, K: np.nd
         try:
             step = np.linalg.solve(H, J.T @ r)
         except np.linalg.LinAlgError:
-            return None, np.inf, np.inf
+            return fail
         p = p - step
         if np.linalg.norm(step) < 1e-7:
             break
     pc = np.einsum("kji,kj->ki", R, p[None] - c)
     if np.any(pc[:, 2] <= 0.05):
-        return None, np.inf, np.inf
+        return fail
     proj = pc @ K.T
     uv = proj[:, :2] / proj[:, 2:3]
     rms = float(np.sqrt(np.mean(np.sum((uv - px) ** 2, axis=1))))
     try:
         cov = pixel_sigma ** 2 * np.linalg.inv(H)
     except np.linalg.LinAlgError:
-        return None, np.inf, np.inf
-    ez = R[-1][:, 2]
-    rel = float(np.sqrt(max(ez @ cov @ ez, 0.0)) / pc[-1, 2])
-    return p, rms, rel
+        return fail
+    return p, rms, cov
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from pipeline.depth_oracle import (
     evaluate_rung,
     record_tracks,
     run_backend,
+    snap_to_true_points,
     standard_rungs,
     true_track_depths,
 )
@@ -39,7 +40,8 @@ __all__ = ["prepare_oracle", "run_ladder", "ladder_verdict", "stereo_reference",
 
 def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                    seeds: Iterable[int], max_frames: int | None = None,
-                   sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False) -> dict[str, Any]:
+                   sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False,
+                   exact_pixels: bool = False) -> dict[str, Any]:
     """Record one :class:`TrackLog` per seed (with truth) for a simulated sequence folder.
 
     Depth and inpainted caches are computed when missing (the pipeline's own stages and caches). Inpainted maps
@@ -48,7 +50,9 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
     far-field rule off: every fill kept) or ``{"edge_disparity_sigmas": 0}`` (the occlusion-edge rule off).
     ``true_acc_bias``: the back ends get the IMU with the simulator's accelerometer bias removed
     (:func:`pipeline.oracle_truth.imu_without_true_acc_bias`; the tracks are recorded from the bag's IMU as before);
-    run them with :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`.
+    run them with :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`. ``exact_pixels``: every truth-triangulated track's
+    pixels replaced by the exact projection of its point (:func:`pipeline.depth_oracle.snap_to_true_points`, a
+    diagnostic: what the features' pixel errors cost, apart from their depths).
     """
     sim = SimulatedSequence(Path(sim_dir))
     seq = RosarioSequence(sim.bag_path, camchain=sim.camchain_path)
@@ -97,6 +101,8 @@ def prepare_oracle(sim_dir: Path, cache_root: Path, methods: Sequence[str], conf
                             {m: inp_provider(m) for m in methods})
         truth_stats[seed] = true_track_depths(log, rig.K_rect, T_world_rect, exact_provider,
                                               config.frontend.min_depth_m, config.frontend.max_depth_m)
+        if exact_pixels:
+            snap_to_true_points(log, rig.K_rect, rig.R_left, T_world_rect)
         if true_acc_bias:
             log.imu = imu_without_true_acc_bias(log.imu, truth)
         logs[seed] = log

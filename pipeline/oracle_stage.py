@@ -186,14 +186,15 @@ class LadderResult:
 def sequence_ladder(sim_dir: Path, cache_root: Path, methods: Sequence[str], config: MsckfConfig,
                     seeds: Sequence[int], *, rungs: list[Rung] | None = None, use_sigma: bool = True,
                     stereo: bool = True, max_frames: int | None = None,
-                    sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False
-                    ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+                    sigma_overrides: Mapping[str, Any] | None = None, true_acc_bias: bool = False,
+                    exact_pixels: bool = False) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
     """The ladder of one simulated sequence folder: (rung → stats, extra). ``rungs`` default to
     :func:`standard_rungs` of ``methods``; ``stereo`` adds the stereo front end on the same seeds;
     ``true_acc_bias``: every back end fed the IMU without the simulator's accelerometer bias (``prepare_oracle``;
-    ``config`` should pin the bias, :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`)."""
+    ``config`` should pin the bias, :data:`pipeline.oracle_truth.PINNED_ACC_BIAS`); ``exact_pixels``: the depth
+    rungs' tracks without KLT pixel error (``prepare_oracle``; the stereo reference keeps its own tracks)."""
     prep = prepare_oracle(sim_dir, cache_root, methods, config, seeds, max_frames, sigma_overrides=sigma_overrides,
-                          true_acc_bias=true_acc_bias)
+                          true_acc_bias=true_acc_bias, exact_pixels=exact_pixels)
     res = run_ladder(prep, config, rungs=rungs or standard_rungs(methods), use_sigma=use_sigma)
     if stereo:
         res["stereo"] = stereo_reference(sim_dir, config, seeds, prep, max_frames, true_acc_bias=true_acc_bias)

@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from eval.trajectory import read_tum
-from pipeline.depth_oracle import Rung, TrackedFrame, TrackLog, run_backend, standard_rungs, true_track_depths
+from pipeline.depth_oracle import (
+    Rung,
+    TrackedFrame,
+    TrackLog,
+    run_backend,
+    snap_to_true_points,
+    standard_rungs,
+    true_track_depths,
+)
 from pipeline.depth_oracle_run import default_config, ladder_verdict, prepare_oracle, run_ladder
 
 K = np.array([[350.0, 0.0, 336.0], [0.0, 350.0, 188.0], [0.0, 0.0, 1.0]])
@@ -56,6 +64,47 @@ def test_tracked_point_truth_is_the_true_depth_and_sliding_tracks_get_none():
     assert stats["triangulated"] == pytest.approx(0.5)
     true_track_depths(log, K, poses, exact_map=exact)                 # with a fallback it is marked as such
     assert log.truth_source[0][1] == 2 and log.truth[0][1] == pytest.approx(2.9)
+
+
+def test_tracked_point_truth_states_its_own_sigma():
+    """``truth_sigma`` is the spread of the true-pose triangulation under ``pixel_sigma`` px of tracking noise."""
+    n = 8
+    poses = {k: _pose(0.03 * k) for k in range(n)}
+    point = np.array([0.2, 0.1, 4.0])
+    clean = [_project(point, poses[k]) for k in range(n)]
+    rng = np.random.default_rng(3)
+    z_last, stated = [], []
+    for _ in range(300):
+        noisy = [px + rng.normal(0.0, 0.5, 2) for px in clean]
+        log = _log_with({1: noisy}, n)
+        true_track_depths(log, K, poses, exact_map=None, pixel_sigma=0.5, max_rms_px=10.0, max_rel_sigma=1.0)
+        z_last.append(log.truth[-1][0])
+        stated.append(log.truth_sigma[-1][0])
+    assert np.all(np.isfinite(stated))
+    assert np.median(stated) == pytest.approx(np.std(z_last), rel=0.15)
+    assert np.median(stated) / 4.0 > 0.002      # larger than the exact rungs' flat σ floor here: it is measured
+
+
+def test_exact_pixels_put_each_point_track_on_its_true_projection_and_leave_the_others():
+    n = 10
+    poses = {k: _pose(0.05 * k) for k in range(n)}
+    point = np.array([0.3, -0.2, 2.5])
+    rng = np.random.default_rng(5)
+    tracked = [_project(point, poses[k]) + rng.normal(0.0, 0.3, 2) for k in range(n)]
+    sliding = [_project(point, poses[k]) + np.array([0.0, 0.8 * k]) for k in range(n)]
+    log = _log_with({1: tracked, 2: sliding}, n)
+    true_track_depths(log, K, poses, exact_map=None)
+    c, s = np.cos(0.02), np.sin(0.02)
+    R_left = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])      # p_rect = R_left p_cam0
+    before = [fr.rect_px[1].copy() for fr in log.frames]
+    assert snap_to_true_points(log, K, R_left, poses) == n               # one point track, every frame
+    p = log.truth_points[1]
+    assert np.linalg.norm(p - point) < 0.05                              # the triangulated point, not the noise
+    for k, fr in enumerate(log.frames):
+        assert np.allclose(fr.rect_px[0], _project(p, poses[k]), atol=1e-9)
+        ray = R_left @ np.array([fr.xy0[0, 0], fr.xy0[0, 1], 1.0])       # the raw cam0 ray, rectified
+        assert np.allclose(ray[:2] / ray[2], (np.linalg.inv(K) @ np.append(fr.rect_px[0], 1.0))[:2], atol=1e-12)
+        assert np.array_equal(fr.rect_px[1], before[k]) and np.array_equal(fr.xy0[1], np.zeros(2))
 
 
 def _result(ate: dict[str, list[float]]) -> dict:
