@@ -3,7 +3,8 @@ each run record states about the depth its features carried (measured vs filled,
 filter's χ² gate (γ/dof ≈ 1 when the measurement noise is calibrated; rejected fraction).
 
 Reads only the records' ``feature_depth`` and ``chi2_gate`` entries (written by the pipeline's run stage); runs
-without them are skipped, so the table is absent for old records.
+without them are skipped, so the table is absent for old records. The caption names the depth gate's scale
+allowance the runs used (``input_key_parts.msckf.gate_depth_scale``), not a default that may have changed since.
 """
 
 from __future__ import annotations
@@ -41,6 +42,11 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
                 values[(rec.sequence, rec.display_variant())][key].append(float(v))
     if not values:
         return None
+    scales = sorted({float(v) for rec in records if rec.status == "ok"
+                     for v in [((rec.extra.get("input_key_parts") or {}).get("msckf") or {}).get("gate_depth_scale")]
+                     if isinstance(v, (int, float))})
+    scale_note = ("`gate_depth_scale` " + ", ".join(f"{v:.0%}" for v in scales) + " in these runs") if scales \
+        else "`gate_depth_scale`"
     head = "| sequence | variant | runs | " + " | ".join(c[2] for c in _COLUMNS) + " |"
     lines = [head, "|" + "---|" * (3 + len(_COLUMNS))]
     for (seq, var) in sorted(values, key=lambda sv: (sv[0], variant_sort_key(sv[1]))):
@@ -56,6 +62,6 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
             "*σ_Z/Z*: the depth uncertainty the filter was given (pipeline/depth_sigma.py). "
             "*γ/dof*: the χ² statistic per degree of freedom of every gated feature; ≈ 1 for a calibrated gate. "
             "Both front ends gate their pixels with σ ≈ 0.18 px (`gate_noise`, `stereo_gate_noise`); the depth front "
-            "end's gate also allows one scale error shared by a feature's depth readings (`gate_depth_scale` 10 %), "
+            f"end's gate also allows one scale error shared by a feature's depth readings ({scale_note}), "
             "and its γ/dof stays well below 1 (≈ 0.2; see the README).\n\n"
             + "\n".join(lines))
