@@ -8,6 +8,7 @@ replaces only the depth values attached to those tracks and re-runs the back end
     exact@raw-valid           the tracked point's true depth at those same features
     exact-everywhere          the tracked point's true depth at every feature that has one (holes included)
     exact+1/3/10%             exact-everywhere × (1 + N(0, level)), σ stated to the filter
+    inpainted[exact]          a perfect inpainting: SGBM where measured, the truth in the holes, flagged as fills
     inpainted[METHOD]         the inpainted map (raw where measured), as the depth-inpainted run gets it
     stereo                    the stereo front end (KLT left→right), for reference
 
@@ -19,11 +20,14 @@ ATE RMSE against the simulator's true antenna positions (SE(3), 20 ms, estimate 
     .venv/bin/python benchmarks/bench_depth_oracle.py [--presets 02 03] [--seeds 0 1 2] [--duration 10]
         [--methods telea] [--config '{"depth_sigma_scale": 8.2}'] [--no-sigma] [--no-stereo]
         [--noise-levels 0.005 0.01 0.02 0.03 0.05] [--track-noise 0.01 0.03]
-        [--structure] [--only-rungs depth-raw exact-everywhere ...] [--true-acc-bias]
+        [--structure] [--only-rungs depth-raw exact-everywhere ...] [--true-acc-bias] [--exact-pixels]
 
 ``--true-acc-bias`` (diagnostic): every back end, stereo included, gets the IMU with the simulator's accelerometer
 bias subtracted and keeps its bias estimate at zero, so the table shows what the accelerometer-bias estimate costs
 (a tilt error hides behind a bias error while the robot drives straight; the rungs' NEES split into tilt and yaw).
+
+``--exact-pixels`` (diagnostic): every track that is a 3-D point gets the exact projection of that point as its pixels,
+so the table separates what the KLT pixel errors of the observations a depth adds cost from what their depths cost.
 
 ``--structure`` adds diagnostic rungs that keep SGBM's errors at the tracked points but break their structure
 (shuffled within a frame / within the run, random signs, or Gaussian at the raw σ; ``structure_rungs``).

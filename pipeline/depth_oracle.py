@@ -343,7 +343,11 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     ``noise``: exact-everywhere ≤ +1 % ≤ +3 % ≤ +10 % ≤ ``mono`` (no depth at any feature: a depth stated to the
     filter with its true σ may help little, but must not make the VIO worse than having none);
     ``value``: exact@raw-valid ≤ depth-raw@tracked-point;
-    ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid; with ``track_noise_levels``,
+    ``coverage`` (exact depth on more features): exact-everywhere ≤ exact@raw-valid (the exact rungs do not tell the
+    filter which depths are fills: every depth counts as measured); ``perfect-fill``: ``inpainted[exact]`` (SGBM
+    where it measured, the truth in its holes, flagged as fills as the pipeline flags every inpainted depth, so
+    the filter's fill policy applies) ≤ depth-raw — a perfect inpainting must not make the VIO worse; with
+    ``track_noise_levels``,
     ``track-noise``: exact + 1 %/track ≤ + 3 %/track ≤ … (one relative error per track, the same in every frame:
     the error structure of a map read at a tracked point, which the per-frame rungs do not have).
     """
@@ -394,6 +398,15 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
             return perturbed(z, level, tables[log.seed][log.frames[i].ids])
         return f
 
+    def perfect_fill(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        # a perfect inpainting: SGBM where it measured, the tracked point's truth in its holes (fills, flagged so)
+        fr = log.frames[i]
+        zr, sr = fr.z_rect["raw"], fr.sigma_rect.get("raw")
+        hole = ~np.isfinite(zr)
+        zt = np.where(log.truth_source[i] == 1, log.truth[i], np.nan)
+        z = np.where(hole, zt, zr)
+        return z, None if sr is None else np.where(hole, exact_sigma_rel * zt, sr)
+
     def no_depth(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
         return np.full(len(log.frames[i].ids), np.nan), None
 
@@ -413,6 +426,7 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
     # no depth at all: the σ → ∞ end of the noise chain (a depth stated with its true σ must not hurt)
     rungs.append(Rung("mono", no_depth, "noise", len(noise_levels) + 1, keep_mono=True))
+    rungs.append(Rung("inpainted[exact]", perfect_fill, measured=raw_measured))
     for k, lv in enumerate(track_noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:

@@ -182,6 +182,8 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
         chains: dict[str, list[tuple[int, str]]] = {}
         if "exact-everywhere" in res and "exact@raw-valid" in res:
             chains["coverage"] = [(0, "exact-everywhere"), (1, "exact@raw-valid")]
+        if "inpainted[exact]" in res and "depth-raw" in res:
+            chains["perfect-fill"] = [(0, "inpainted[exact]"), (1, "depth-raw")]
         for name, r in res.items():
             if r["chain"]:
                 chains.setdefault(r["chain"], []).append((r["order"], name))

@@ -31,7 +31,7 @@ LADDER_MD = "depth_oracle.md"
 LADDER_JSON = "depth_oracle.json"
 #: Rungs shown in the report's compact table, in this order (the others stay in the JSON and the benchmark).
 REPORT_ORDER = ("exact-everywhere", "exact@raw-valid", "exact+1%", "exact+3%", "exact+10%", "depth-raw@tracked-point",
-                "depth-raw", "mono", "stereo")
+                "inpainted[exact]", "depth-raw", "mono", "stereo")
 
 
 def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:

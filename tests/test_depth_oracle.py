@@ -244,3 +244,26 @@ def test_structure_rungs_keep_the_raw_errors_but_break_their_structure():
     ok = np.isfinite(frames[2].z_rect["raw"]) & (source[2] == 1)
     e = (z[ok] - truth[2][ok]) / frames[2].sigma_rect["raw"][ok]
     assert np.all((e > -2.0 - 1e-9) & (e < 3.0 + 1e-9))
+
+
+def test_perfect_fill_rung_is_sgbm_where_measured_the_truth_in_the_holes_and_says_which_are_fills():
+    """``inpainted[exact]``: raw depth and σ where SGBM measured, the tracked point's truth (σ 0.2 %) in its holes
+    where the track is a 3-D point, nothing elsewhere; the measured flag is the raw validity, so the filter's fill
+    policy applies as to any inpainting; and the verdict holds it to ``inpainted[exact] ≤ depth-raw``."""
+    ids = np.arange(4, dtype=np.int64)
+    fr = TrackedFrame(0.0, 0, ids, np.zeros((4, 2)), np.ones(4, np.int32), np.zeros((4, 2)))
+    fr.z_rect["raw"] = np.array([2.0, np.nan, np.nan, 5.0])
+    fr.sigma_rect["raw"] = np.array([0.05, np.nan, np.nan, 0.4])
+    log = TrackLog([fr], np.zeros((0, 7)), truth=[np.array([2.1, 3.0, 4.0, 5.2])],
+                   truth_source=[np.array([1, 1, 0, 1], np.uint8)])
+    rung = {r.name: r for r in standard_rungs()}["inpainted[exact]"]
+    z, s = rung.depth(log, 0)
+    np.testing.assert_array_equal(z, [2.0, 3.0, np.nan, 5.0])          # the hole without a 3-D point stays empty
+    np.testing.assert_allclose(s, [0.05, 0.006, np.nan, 0.4])
+    np.testing.assert_array_equal(rung.measured(log, 0), [True, False, False, True])
+    res = {"inpainted[exact]": {"ate": {0: 0.05, 1: 0.06}, "failed": [], "chain": "", "order": 0},
+           "depth-raw": {"ate": {0: 0.03, 1: 0.031}, "failed": [], "chain": "", "order": 0}}
+    ok, bad = ladder_verdict({"seq": res})
+    assert not ok and "inpainted[exact]" in bad[0]
+    res["inpainted[exact]"]["ate"] = {0: 0.029, 1: 0.03}
+    assert ladder_verdict({"seq": res})[0]
