@@ -42,8 +42,7 @@ from msckf.types import DepthSource, FeatureObservations
 from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "snap_to_true_points", "Rung",
-           "standard_rungs",
-           "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
+           "standard_rungs", "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
 
 
 @dataclass
@@ -218,7 +217,8 @@ def snap_to_true_points(log: TrackLog, K_rect: np.ndarray, R_left: np.ndarray,
 
     A diagnostic (``bench_depth_oracle.py --exact-pixels``): the tracks stay the same features over the same frames,
     but without KLT's pixel error, so the ladder separates what the *pixels* of the features a depth adds cost
-    from what their *depths* cost. Tracks without a true-pose point (``truth_source`` ≠ 1) keep their pixels. The
+    from what their *depths* cost. Tracks without an accepted true-pose point (not in ``truth_points``) keep their
+    pixels; an accepted track is snapped in every frame, also where its depth is outside the truth's range. The
     depth reads recorded at the tracked pixels (``z_rect``) are left as they were. Call after
     :func:`true_track_depths`.
 
