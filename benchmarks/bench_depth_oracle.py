@@ -49,7 +49,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.depth_oracle import standard_rungs, structure_rungs  # noqa: E402
+from pipeline.depth_oracle import EXACT_SIGMA_REL, standard_rungs, structure_rungs  # noqa: E402
 from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
 from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.oracle_truth import PINNED_ACC_BIAS  # noqa: E402
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         srel = np.mean([v.get("median_sigma_rel", np.nan) for v in extra[preset]["truth"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "
               f"3-D point against the true poses, or outside the depth range); the truth's own σ_Z/Z at 0.5 px of "
-              f"tracking noise: median {srel:.2%} (the exact rungs state 0.2 %)")
+              f"tracking noise: median {srel:.2%} (the exact rungs state {EXACT_SIGMA_REL:.1%})")
         for m, e in extra[preset]["depth_error_at_tracked_points"].items():
             print(f"depth at tracked points, {m}: median |rel. error| {e['median_abs_rel']:.2%}, "
                   f"median rel. error {e['median_rel']:+.2%} (n = {e['n']})")

@@ -33,20 +33,21 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
     """Markdown table (medians over the successful runs of each sequence × variant), or None when no record
     carries the statistics."""
     values: dict[tuple[str, str], dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    scales: set[float] = set()
     for rec in records:
         if rec.status != "ok":
             continue
+        scale = ((rec.extra.get("input_key_parts") or {}).get("msckf") or {}).get("gate_depth_scale")
+        if isinstance(scale, (int, float)):
+            scales.add(float(scale))
         for section, key, _, _ in _COLUMNS:
             v = (rec.extra.get(section) or {}).get(key)
             if isinstance(v, (int, float)) and np.isfinite(v):
                 values[(rec.sequence, rec.display_variant())][key].append(float(v))
     if not values:
         return None
-    scales = sorted({float(v) for rec in records if rec.status == "ok"
-                     for v in [((rec.extra.get("input_key_parts") or {}).get("msckf") or {}).get("gate_depth_scale")]
-                     if isinstance(v, (int, float))})
-    scale_note = ("`gate_depth_scale` " + ", ".join(f"{v:.0%}" for v in scales) + " in these runs") if scales \
-        else "`gate_depth_scale`"
+    scale_note = ("`gate_depth_scale` " + ", ".join(f"{v:.0%}" for v in sorted(scales)) + " in these runs"
+                  if scales else "`gate_depth_scale`")
     head = "| sequence | variant | runs | " + " | ".join(c[2] for c in _COLUMNS) + " |"
     lines = [head, "|" + "---|" * (3 + len(_COLUMNS))]
     for (seq, var) in sorted(values, key=lambda sv: (sv[0], variant_sort_key(sv[1]))):

@@ -42,7 +42,8 @@ from msckf.types import DepthSource, FeatureObservations
 from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "snap_to_true_points", "Rung",
-           "standard_rungs", "structure_rungs", "run_backend", "NeesAccumulator", "evaluate_rung"]
+           "EXACT_SIGMA_REL", "PAIR_CHECKS", "standard_rungs", "structure_rungs", "run_backend", "NeesAccumulator",
+           "evaluate_rung"]
 
 
 @dataclass
@@ -94,6 +95,16 @@ class TrackLog:
 
 
 DepthProvider = Callable[[int], "tuple[np.ndarray, np.ndarray, np.ndarray | None]"]
+
+#: σ_Z/Z the exact rungs state for the tracked point's true depth (a small floor: the depth is the truth).
+EXACT_SIGMA_REL = 0.002
+
+#: Checks between two rungs outside the ``chain``/``order`` chains (a rung belongs to one chain only): name →
+#: (more accurate rung, less accurate rung); the first must not have the larger ATE (``ladder_verdict``).
+PAIR_CHECKS: dict[str, tuple[str, str]] = {
+    "coverage": ("exact-everywhere", "exact@raw-valid"),
+    "perfect-fill": ("inpainted[exact]", "depth-raw"),
+}
 
 
 def record_tracks(rig: Any, config: MsckfConfig, seed: int, imu: np.ndarray,
@@ -327,7 +338,7 @@ class Rung:
 
 
 def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
-                   noise_seed: int = 0, exact_sigma_rel: float = 0.002,
+                   noise_seed: int = 0, exact_sigma_rel: float = EXACT_SIGMA_REL,
                    track_noise_levels: Iterable[float] = ()) -> list[Rung]:
     """The ladder of issue 17: raw; exact at raw-valid pixels; exact everywhere; exact + noise; inpainted.
 
@@ -403,9 +414,8 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         fr = log.frames[i]
         zr, sr = fr.z_rect["raw"], fr.sigma_rect.get("raw")
         hole = ~np.isfinite(zr)
-        zt = np.where(log.truth_source[i] == 1, log.truth[i], np.nan)
-        z = np.where(hole, zt, zr)
-        return z, None if sr is None else np.where(hole, exact_sigma_rel * zt, sr)
+        zt, st = exact_all(log, i)
+        return np.where(hole, zt, zr), None if sr is None else np.where(hole, st, sr)
 
     def no_depth(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
         return np.full(len(log.frames[i].ids), np.nan), None

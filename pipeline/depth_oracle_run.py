@@ -19,6 +19,7 @@ from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams, to_grey
 from pipeline.depth_cache import DepthCache, depth_stream
 from pipeline.depth_oracle import (
+    PAIR_CHECKS,
     NeesAccumulator,
     Rung,
     TrackLog,
@@ -179,11 +180,7 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
     """
     bad: list[str] = []
     for seq_name, res in results.items():
-        chains: dict[str, list[tuple[int, str]]] = {}
-        if "exact-everywhere" in res and "exact@raw-valid" in res:
-            chains["coverage"] = [(0, "exact-everywhere"), (1, "exact@raw-valid")]
-        if "inpainted[exact]" in res and "depth-raw" in res:
-            chains["perfect-fill"] = [(0, "inpainted[exact]"), (1, "depth-raw")]
+        chains = {name: [(0, a), (1, b)] for name, (a, b) in PAIR_CHECKS.items() if a in res and b in res}
         for name, r in res.items():
             if r["chain"]:
                 chains.setdefault(r["chain"], []).append((r["order"], name))
