@@ -7,7 +7,8 @@ Both front ends track FAST corners on the *raw* (distorted) left image exactly a
    inter-frame rotation, rotated into cam0 (``T_cam0_imu``), and each feature's undistorted previous position is
    moved by the infinite homography ``K R K⁻¹`` (rotate the ray, re-project through the distortion) to give the
    initial flow of pyramidal KLT (``cv2.calcOpticalFlowPyrLK`` with ``OPTFLOW_USE_INITIAL_FLOW``). Tracks that
-   fail or leave the image are dropped.
+   fail or leave the image are dropped; with ``klt_fb_max_px`` > 0 (off by default) also those whose
+   forward–backward round trip misses their previous pixel by more than that.
 2. **Stereo matching** (``StereoFrontend`` only). KLT cam0→cam1 from the infinite-depth guess (the cam0 ray
    rotated by the stereo extrinsic rotation and projected into the raw right image), then the epipolar test
    ``|x1ᵀ E x0| / |(E x0)_xy| · f̄ > stereo_threshold`` (``E = [t]× R`` of ``T_right_left``, ``f̄`` the mean
@@ -236,7 +237,21 @@ class _TrackerBase:
         guess = self.rig.left.project(np.concatenate([xy_pred, np.ones((len(tr), 1))], axis=1))
         bad = ~np.all(np.isfinite(guess), axis=1)
         guess[bad] = tr.px0[bad]
-        return self._klt(self._prev_image, image, tr.px0, guess, self.config.pyramid_levels)
+        px0, ok = self._klt(self._prev_image, image, tr.px0, guess, self.config.pyramid_levels)
+        if self.config.klt_fb_max_px > 0.0 and ok.any():
+            ok &= self._forward_backward_ok(image, tr.px0, px0, ok)
+        return px0, ok
+
+    def _forward_backward_ok(self, image: np.ndarray, px_prev: np.ndarray, px_curr: np.ndarray,
+                             ok: np.ndarray) -> np.ndarray:
+        """(N,) mask of the tracks whose round trip (``px_curr`` in ``image`` tracked back into the previous image,
+        starting at ``px_prev``) lands within ``klt_fb_max_px`` of ``px_prev``; False where ``ok`` is False."""
+        idx = np.flatnonzero(ok)
+        back, back_ok = self._klt(image, self._prev_image, px_curr[idx], px_prev[idx], self.config.pyramid_levels)
+        err = np.linalg.norm(back - px_prev[idx], axis=1)
+        keep = np.zeros(len(ok), dtype=bool)
+        keep[idx] = back_ok & (err <= self.config.klt_fb_max_px)
+        return keep
 
     def _track_previous(self, image: np.ndarray, stamp_s: float
                         ) -> tuple[_Tracks, _Tracks, tuple[np.ndarray, np.ndarray] | None]:

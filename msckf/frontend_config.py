@@ -46,6 +46,10 @@ class FrontendConfig:
             zero and inliers are the points that moved less than ``ransac_threshold`` (1 px).
         mask_radius_px: new features are not detected within this Chebyshev radius of an existing feature
             (2 → S-MSCKF's 5×5-pixel mask).
+        klt_fb_max_px: [port] forward–backward check of the temporal KLT (pixels, raw left image): each tracked
+            point is tracked back into the previous image from where it was found, and a track whose round trip
+            misses its previous pixel by more than this is dropped (a track that slid across an occlusion edge
+            or onto another surface). 0 = off (S-MSCKF has no such check).
 
     Choices of this port (documented in msckf/frontend.py):
         stereo_keep_mono: variant ``stereo`` only. False (S-MSCKF): a tracked feature whose stereo match fails is
@@ -86,6 +90,7 @@ class FrontendConfig:
     ransac_min_inlier_fraction: float = 0.2
     ransac_degenerate_motion_px: float = 1.0
     mask_radius_px: int = 2
+    klt_fb_max_px: float = 0.0
 
     stereo_keep_mono: bool = False
     stereo_reuse_disparity: bool = False
@@ -123,7 +128,7 @@ class FrontendConfig:
                      "ransac_degenerate_motion_px", "max_depth_m"):
             if getattr(self, name) <= 0:
                 raise bad(name, "must be > 0")
-        for name in ("stereo_min_depth_m", "min_depth_m", "depth_edge_threshold"):
+        for name in ("stereo_min_depth_m", "min_depth_m", "depth_edge_threshold", "klt_fb_max_px"):
             if getattr(self, name) < 0:
                 raise bad(name, "must be >= 0")
         if self.grid_max_feature_num < self.grid_min_feature_num:

@@ -735,3 +735,36 @@ def test_recorded_tracks_replay_to_identical_observations(wall_seq):
     fe.process(wall_seq.stamps[0], None, *maps[0])
     with pytest.raises(MsckfInputError, match="end after 1 frame"):
         fe.process(wall_seq.stamps[1], None, *maps[1])
+
+
+def test_forward_backward_check_drops_tracks_onto_a_surface_that_replaced_theirs():
+    # Frame 2: the left half of the image shows another textured wall (a sudden occluder) instead of the one the
+    # tracks followed. KLT still "finds" some of them there and a few survive RANSAC; the round trip back into
+    # frame 1 does not return to where they came from, so the check drops them all, and keeps the tracks on the
+    # unoccluded right half.
+    frames = 3
+    seq = _Sequence([Plane.wall(4.0, make_texture(3, 2048), 0.004)], _wall_motion, frames)
+    occluder = _Sequence([Plane.wall(4.0, make_texture(7, 2048), 0.004)], _wall_motion, frames).left
+    half = seq.left[0].shape[1] // 2
+    survived = {}
+    for fb_max in (0.0, 0.5):
+        fe = DepthFrontend(FrontendConfig(klt_fb_max_px=fb_max), seq.rig, seq.rig.T_left_imu, seed=0)
+        j, tracks = 0, []
+        for k, t in enumerate(seq.stamps):
+            while j < len(seq.imu) and seq.imu[j][0] <= t:
+                fe.add_imu(*seq.imu[j])
+                j += 1
+            img = seq.left[k].copy()
+            if k == frames - 1:
+                img[:, :half] = occluder[k][:, :half]
+            tracks.append(fe.track(t, img))
+        before, after = tracks[-2], tracks[-1]
+        occluded = before.px0[:, 0] < half - 20     # clear of the seam (KLT window 15 px)
+        clear = before.px0[:, 0] > half + 20
+        kept = np.isin(before.ids, after.ids)
+        survived[fb_max] = (kept[occluded].mean(), kept[clear].mean())
+        assert occluded.sum() > 100 and clear.sum() > 100
+    assert survived[0.0][0] > 0.03          # without the check, wrong tracks get through
+    assert survived[0.5][0] == 0.0          # with it, none
+    assert survived[0.5][1] > 0.85          # the unoccluded tracks stay
+    assert survived[0.5][1] > survived[0.0][1] - 0.05
