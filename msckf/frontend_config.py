@@ -52,10 +52,11 @@ class FrontendConfig:
             or onto another surface). 0 = off (S-MSCKF has no such check). Measured (stop 45, oracle back end): on
             ``rosario-like-02`` (120 s) 0.7 % of the frame steps have a round-trip error > 0.5 px, and their true
             step is 0.9–1.7 px (median) against 0.16 px for the rest; with the default pixel σ, 0.5 px changes the
-            10 s ladder little (depth-raw 0.0139 / 0.0140 / 0.0146 → 0.0143 / 0.0117 / 0.0151 m, stereo unchanged)
-            and makes ``paper`` worse at 120 s on 02 (0.113 → 0.198 m, 3 seeds); with honest pixels (0.3 px + drift,
-            gate at that σ) it makes the tracked points' exact depth near-consistent (01, 120 s: 0.084 → 0.041 m,
-            NEES of position 12 → 3.3). Hence off by default.
+            10 s ladder little (depth-raw 0.0139 / 0.0140 / 0.0146 → 0.0143 / 0.0117 / 0.0151 m, stereo 0.0106 /
+            0.0117 / 0.0171 → 0.0105 / 0.0114 / 0.0181) and makes ``paper`` worse at 120 s on 02 (0.113 → 0.198 m,
+            3 seeds); with honest pixels (0.3 px + drift, gate at that σ) it makes the tracked points' exact depth
+            near-consistent on 01 (120 s: 0.084 → 0.041 m, NEES of position 12 → 3.3), not on 03 (0.108 m, NEES
+            13.5). Hence off by default.
 
     Choices of this port (documented in msckf/frontend.py):
         stereo_keep_mono: variant ``stereo`` only. False (S-MSCKF): a tracked feature whose stereo match fails is
