@@ -16,7 +16,8 @@ the depth front end's tight gate (``gate_noise`` 0.0005 + ``gate_depth_scale`` 0
 ``depth_fills_only_unmeasured`` (stop 41, off) from ba2dc77ce0aa2753 / 6dffeb4866423741, and its default turned on
 (stop 41) from eb145e291d11ca40 / 3e1cce0ee7ef4dea, and ``depth_sigma_scale`` (stop 42, 1 = off) from
 818c24d0a25cbc79 / b479da2117abe716, and ``gate_depth_scale`` 0.1 → 0.03 by default (stop 43) from
-65ee772b8395b1d4 / 981d481161a82396.
+65ee772b8395b1d4 / 981d481161a82396, and the front end's ``klt_fb_max_px`` (stop 45, 0 = off) from
+911d0e7895695d16 / 24cd55104d428aa3.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "911d0e7895695d16"
+DEFAULT_MSCKF_HASH = "7a0bdb88a6532eda"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "24cd55104d428aa3"
+DEFAULT_JOB_KEY = "a6d0fc094c81d1cb"
 
 
 def _job_key(msckf: dict) -> str:
