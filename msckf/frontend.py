@@ -239,7 +239,7 @@ class _TrackerBase:
         guess[bad] = tr.px0[bad]
         px0, ok = self._klt(self._prev_image, image, tr.px0, guess, self.config.pyramid_levels)
         if self.config.klt_fb_max_px > 0.0 and ok.any():
-            ok &= self._forward_backward_ok(image, tr.px0, px0, ok)
+            ok = self._forward_backward_ok(image, tr.px0, px0, ok)
         return px0, ok
 
     def _forward_backward_ok(self, image: np.ndarray, px_prev: np.ndarray, px_curr: np.ndarray,

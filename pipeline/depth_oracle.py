@@ -241,8 +241,9 @@ def snap_to_true_points(log: TrackLog, K_rect: np.ndarray, R_left: np.ndarray,
         The number of observations replaced.
     """
     n = 0
+    point_ids = np.fromiter(log.truth_points, dtype=np.int64, count=len(log.truth_points))
     for fr in log.frames:
-        sel = np.flatnonzero([int(t) in log.truth_points for t in fr.ids]) if len(fr.ids) else np.zeros(0, int)
+        sel = np.flatnonzero(np.isin(fr.ids, point_ids))
         if len(sel) == 0:
             continue
         T = T_world_rect[fr.index]
@@ -372,12 +373,12 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         s = fr.sigma_rect.get("raw")
         return np.where(keep, fr.z_rect["raw"], np.nan), None if s is None else np.where(keep, s, np.nan)
 
-    def exact_raw(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+    def exact_raw(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray]:
         fr = log.frames[i]
         z = np.where(np.isfinite(fr.z_rect["raw"]) & (log.truth_source[i] == 1), log.truth[i], np.nan)
         return z, exact_sigma_rel * z
 
-    def exact_all(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+    def exact_all(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray]:
         z = np.where(log.truth_source[i] == 1, log.truth[i], np.nan)
         return z, exact_sigma_rel * z
 

@@ -182,7 +182,6 @@ def test_true_acc_bias_prep_feeds_the_back_end_the_imu_without_the_simulators_bi
 def test_per_track_noise_rung_gives_each_track_one_error_in_every_frame():
     """The ``exact+L%/track`` rungs perturb the tracked point's true depth by one relative error per track id
     (the same in every frame that sees it), unlike the per-frame rungs; σ is stated as for those."""
-
     n, ids = 6, np.array([3, 8, 11], np.int64)
     frames = [TrackedFrame(0.1 * k, k, ids, np.zeros((3, 2)), np.full(3, k + 1, np.int32), np.zeros((3, 2)))
               for k in range(n)]
