@@ -31,6 +31,10 @@ so the table separates what the KLT pixel errors of the observations a depth add
 
 ``--structure`` adds diagnostic rungs that keep SGBM's errors at the tracked points but break their structure
 (shuffled within a frame / within the run, random signs, or Gaussian at the raw σ; ``structure_rungs``).
+
+``--non-point`` adds diagnostic rungs that split depth-raw by track class: the tracks that are not consistent 3-D
+points read the exact map instead of SGBM (``raw+map@non-point``), or only they keep their SGBM depth
+(``raw@non-point``; ``non_point_rungs``).
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.depth_oracle import EXACT_SIGMA_REL, standard_rungs, structure_rungs  # noqa: E402
+from pipeline.depth_oracle import EXACT_SIGMA_REL, non_point_rungs, standard_rungs, structure_rungs  # noqa: E402
 from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
 from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.oracle_truth import PINNED_ACC_BIAS  # noqa: E402
@@ -81,6 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--structure", action="store_true",
                     help="extra diagnostic rungs: SGBM's errors at tracked points shuffled / sign-flipped / "
                          "replaced by Gaussian noise at the raw σ (pipeline.depth_oracle.structure_rungs)")
+    ap.add_argument("--non-point", action="store_true",
+                    help="extra diagnostic rungs: depth-raw split by track class — the non-point tracks read the "
+                         "exact map instead of SGBM, or only they get their SGBM depth "
+                         "(pipeline.depth_oracle.non_point_rungs)")
     ap.add_argument("--only-rungs", nargs="*", default=None, help="run only these rung names (e.g. to save time)")
     ap.add_argument("--true-acc-bias", action="store_true",
                     help="diagnostic: every back end gets the IMU without the simulator's accelerometer bias and "
@@ -110,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         rungs = standard_rungs(args.methods, noise_levels=args.noise_levels, track_noise_levels=args.track_noise)
         if args.structure:
             rungs += structure_rungs()
+        if args.non_point:
+            rungs += non_point_rungs()
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]
         res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,

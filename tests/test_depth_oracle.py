@@ -245,6 +245,31 @@ def test_structure_rungs_keep_the_raw_errors_but_break_their_structure():
     assert np.all((e > -2.0 - 1e-9) & (e < 3.0 + 1e-9))
 
 
+def test_non_point_rungs_split_depth_raw_by_track_class():
+    """``non_point_rungs``: ``raw+map@non-point`` is depth-raw with the exact map's value on the non-point tracks
+    (truth source 2) and the raw σ everywhere; ``raw@non-point`` keeps only the non-point tracks' raw readings; a
+    hole stays a hole in both, and both mark SGBM's readings as measured."""
+    from pipeline.depth_oracle import non_point_rungs
+
+    k = 6
+    fr = TrackedFrame(0.0, 0, np.arange(k, dtype=np.int64), np.zeros((k, 2)), np.ones(k, np.int32), np.zeros((k, 2)))
+    fr.z_rect["raw"] = np.array([2.0, 3.0, np.nan, 4.0, 5.0, 6.0])
+    fr.sigma_rect["raw"] = np.full(k, 0.1)
+    truth = np.array([2.1, 3.3, 3.9, 4.4, np.nan, 6.6])
+    source = np.array([1, 2, 2, 2, 0, 1], np.uint8)                      # point, non-point ×3, none, point
+    log = TrackLog([fr], np.zeros((0, 7)), seed=0, truth=[truth], truth_source=[source])
+    rungs = {r.name: r for r in non_point_rungs()}
+    assert all(r.chain == "" for r in rungs.values())
+    z, s = rungs["raw+map@non-point"].depth(log, 0)
+    np.testing.assert_array_equal(z, [2.0, 3.3, np.nan, 4.4, 5.0, 6.0])
+    np.testing.assert_array_equal(s, np.full(k, 0.1))
+    z, s = rungs["raw@non-point"].depth(log, 0)
+    np.testing.assert_array_equal(z, [np.nan, 3.0, np.nan, 4.0, 5.0, np.nan])
+    np.testing.assert_array_equal(np.isfinite(s), [False, True, True, True, True, False])
+    for r in rungs.values():
+        np.testing.assert_array_equal(r.measured(log, 0), np.isfinite(fr.z_rect["raw"]))
+
+
 def test_perfect_fill_rung_is_sgbm_where_measured_the_truth_in_the_holes_and_says_which_are_fills():
     """``inpainted[exact]``: raw depth and σ where SGBM measured, the tracked point's truth (σ 0.2 %) in its holes
     where the track is a 3-D point, nothing elsewhere; the measured flag is the raw validity, so the filter's fill
