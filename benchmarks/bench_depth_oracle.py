@@ -111,15 +111,28 @@ def main(argv: list[str] | None = None) -> int:
         sigma_overrides["far_open_radius_px"] = 0 if args.no_far_open else args.far_open_radius
     if args.fill_edge_sigmas is not None:
         sigma_overrides["edge_disparity_sigmas"] = args.fill_edge_sigmas
-    t0 = time.perf_counter()
-    for p in args.presets:
-        preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
-        src = simulate_cached(preset, duration_s=args.duration, progress=False)
+    def ladder_rungs() -> list:
+        # built afresh for every preset: some rungs keep per-seed state (structure_rungs' error pools)
         rungs = standard_rungs(args.methods, noise_levels=args.noise_levels, track_noise_levels=args.track_noise)
         if args.structure:
             rungs += structure_rungs()
         if args.non_point:
             rungs += non_point_rungs()
+        return rungs
+
+    if args.only_rungs is not None:
+        known = [r.name for r in ladder_rungs()]
+        unknown = [n for n in args.only_rungs if n not in known]
+        if unknown or not args.only_rungs:
+            # (an empty selection would make the ladder fall back to every standard rung)
+            ap.error(f"--only-rungs: {'no rung named' if args.only_rungs else 'name at least one rung'}"
+                     f"{' ' + ', '.join(repr(n) for n in unknown) if unknown else ''} "
+                     f"(rungs with these options: {', '.join(known)})")
+    t0 = time.perf_counter()
+    for p in args.presets:
+        preset = p if p.startswith("rosario") or p == "tiny" else f"rosario-like-{p}"
+        src = simulate_cached(preset, duration_s=args.duration, progress=False)
+        rungs = ladder_rungs()
         if args.only_rungs is not None:
             rungs = [r for r in rungs if r.name in args.only_rungs]
         res, extra[preset] = sequence_ladder(src.sim_dir, cache, args.methods, config, args.seeds, rungs=rungs,
@@ -135,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{'' if args.far_open_radius is None else f', reach {args.far_open_radius} px'}"
               f"{'' if args.fill_edge_sigmas is None else f'; occlusion-edge rule {args.fill_edge_sigmas:g} σ'})")
         print("\n".join(rung_table(res, args.seeds)))
+        for name, r in res.items():
+            for seed, why in sorted(r.get("failed", {}).items()):
+                print(f"failed: {name}, seed {seed}: {why}")
         tri = np.mean([v["triangulated"] for v in extra[preset]["truth"].values()])
         srel = np.mean([v.get("median_sigma_rel", np.nan) for v in extra[preset]["truth"].values()])
         print(f"\nobservations with a tracked-point truth: {tri:.1%} (the rest: tracks that are not a consistent "

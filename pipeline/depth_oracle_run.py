@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from eval.errors import EvalInputError
 from msckf.config import MsckfConfig, load_config
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams, to_grey
@@ -147,7 +148,10 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
             if failure is not None or len(traj.stamps_s) < 3:
                 failed[seed] = failure or "no poses"
                 continue
-            ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+            try:
+                ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+            except EvalInputError as exc:      # e.g. a clip too short to align: a failed run, not a lost ladder
+                failed[seed] = f"evaluation: {exc}"
         out[rung.name] = {"ate": ate, "failed": failed, "chain": rung.chain, "order": rung.order,
                           "depth_fraction": float(np.mean([s["depth_fraction"] for s in stats.values()])),
                           "gated_out": int(sum(s["gated_out"] for s in stats.values())),
@@ -175,10 +179,13 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
     For every pair of neighbouring rungs of a chain (more accurate ``a``, less accurate ``b``) on every sequence,
     the paired per-seed differences ``ATE_a − ATE_b`` must have a mean ≤ 2 standard errors of that mean plus
     ``rel_tol`` × mean ATE_b (the spread of repeated runs). A failed run on the more accurate rung is a violation.
+    A ladder in which no pair could be compared (e.g. one rung, or every run failed) is not monotone: nothing was
+    shown, and the violation says so.
 
     Returns (monotone, list of violations as text).
     """
     bad: list[str] = []
+    compared = 0
     for seq_name, res in results.items():
         chains = {name: [(0, a), (1, b)] for name, (a, b) in PAIR_CHECKS.items() if a in res and b in res}
         for name, r in res.items():
@@ -190,10 +197,12 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
                 ra, rb = res[a], res[b]
                 if ra["failed"]:
                     bad.append(f"{seq_name}: {a} failed on seeds {sorted(ra['failed'])}")
+                    compared += 1
                     continue
                 seeds = sorted(set(ra["ate"]) & set(rb["ate"]))
                 if not seeds:
                     continue
+                compared += 1
                 d = np.array([ra["ate"][s] - rb["ate"][s] for s in seeds])
                 se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
                 mb = float(np.mean([rb["ate"][s] for s in seeds]))
@@ -201,6 +210,9 @@ def ladder_verdict(results: dict[str, dict[str, dict[str, Any]]], rel_tol: float
                     bad.append(f"{seq_name}: {a} ({np.mean([ra['ate'][s] for s in seeds]):.4f} m) worse than "
                                f"{b} ({mb:.4f} m): paired Δ {d.mean():+.4f} m > 2·SE {2 * se:.4f} + "
                                f"{rel_tol:.0%} of {b}")
+    if compared == 0:
+        bad.append("nothing compared: no chain has two rungs with a common successful seed (run more rungs, "
+                   "e.g. without --only-rungs)")
     return not bad, bad
 
 
@@ -254,7 +266,11 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
             gamma_medians.append(float(np.median(g)) if g.size else float("nan"))
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
-        ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+        try:
+            ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+        except EvalInputError as exc:
+            failed[seed] = f"evaluation: {exc}"
+            continue
         nees_stats.append(nees.stats())
     return {"ate": ate, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
             "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan"),

@@ -128,6 +128,18 @@ def test_ladder_verdict_accepts_a_monotone_ladder_and_names_a_violation():
     assert any("exact-everywhere" in w and "exact@raw-valid" in w for w in why)   # the coverage chain
 
 
+def test_ladder_verdict_is_not_monotone_when_nothing_was_compared():
+    """One rung, or rungs without a common successful seed, show nothing: the verdict must not say yes."""
+    one = _result({"exact+1%": [0.011, 0.012]})
+    ok, why = ladder_verdict({"s": one})
+    assert not ok and "nothing compared" in why[0]
+    disjoint = _result({"exact@raw-valid": [0.012], "depth-raw@tracked-point": [0.015]})
+    disjoint["depth-raw@tracked-point"]["ate"] = {5: 0.015}                   # no seed in common
+    assert not ladder_verdict({"s": disjoint})[0]
+    disjoint["depth-raw@tracked-point"]["ate"] = {0: 0.015}
+    assert ladder_verdict({"s": disjoint}) == (True, [])
+
+
 def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_path, monkeypatch):
     """The ladder is only meaningful if its back-end replay of recorded tracks *is* the depth-raw run: with the
     same configuration the raw rung's trajectory equals the run's estimate.tum exactly."""
