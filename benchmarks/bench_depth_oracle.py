@@ -53,7 +53,13 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from pipeline.atomic import write_json_atomic  # noqa: E402
-from pipeline.depth_oracle import EXACT_SIGMA_REL, non_point_rungs, standard_rungs, structure_rungs  # noqa: E402
+from pipeline.depth_oracle import (  # noqa: E402
+    EXACT_SIGMA_REL,
+    Rung,
+    non_point_rungs,
+    standard_rungs,
+    structure_rungs,
+)
 from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
 from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.oracle_truth import PINNED_ACC_BIAS  # noqa: E402
@@ -111,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         sigma_overrides["far_open_radius_px"] = 0 if args.no_far_open else args.far_open_radius
     if args.fill_edge_sigmas is not None:
         sigma_overrides["edge_disparity_sigmas"] = args.fill_edge_sigmas
-    def ladder_rungs() -> list:
+
+    def ladder_rungs() -> list[Rung]:
         # built afresh for every preset: some rungs keep per-seed state (structure_rungs' error pools)
         rungs = standard_rungs(args.methods, noise_levels=args.noise_levels, track_noise_levels=args.track_noise)
         if args.structure:

@@ -517,8 +517,9 @@ def non_point_rungs() -> list[Rung]:
 
     ``raw+map@non-point``: as ``depth-raw`` (every raw-valid feature, the raw σ), but a non-point track's reading
     is replaced by the exact map's value at its pixel (keeping the raw σ): what the *SGBM values* on the non-point
-    tracks cost, apart from the tracks themselves. ``raw@non-point``: the raw reading (and σ) on the non-point
-    tracks only: ``depth-raw`` without ``depth-raw@tracked-point``'s features. Both say that their depths are
+    tracks cost, apart from the tracks themselves (a reading without any truth, ``truth_source`` 0, keeps SGBM's).
+    ``raw@non-point``: the raw reading (and σ) on every track that is not a point track: ``depth-raw`` without
+    ``depth-raw@tracked-point``'s features. Both say that their depths are
     measured where SGBM measured (as ``depth-raw``). Not part of any monotonicity chain.
     """
     def parts(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
