@@ -85,6 +85,7 @@ FLAT_KEYS: dict[str, str] = {
     "depth_shared_rel_sigma": "depth",
     "depth_fills_only_unmeasured": "depth",
     "depth_sigma_scale": "depth",
+    "depth_min_rel_sigma": "depth",
     "huber_epsilon": "triangulation",
     "estimation_precision": "triangulation",
     "initial_damping": "triangulation",

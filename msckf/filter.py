@@ -333,6 +333,9 @@ class MsckfFilter:
         fs.depth[rows, slot] = depth
         if obs.depth_sigma_m is not None:
             sig = np.asarray(obs.depth_sigma_m, dtype=np.float64)
+            floor = self.config.depth.depth_min_rel_sigma
+            if floor > 0.0:
+                sig = np.maximum(sig, floor * depth)           # NaN where either is NaN: no stated σ
             fs.depth_sigma[rows, slot] = np.where(np.isfinite(depth) & np.isfinite(sig) & (sig > 0), sig, np.nan)
         else:
             fs.depth_sigma[rows, slot] = np.nan

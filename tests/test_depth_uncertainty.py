@@ -220,6 +220,9 @@ def test_depth_sigma_reaches_the_filter_from_observations():
     rows = fs.add(obs.ids)
     flt = MsckfFilter.__new__(MsckfFilter)
     flt.features = fs
+    from msckf.config import MsckfConfig
+
+    flt.config = MsckfConfig()                                         # default: no σ floor
     from msckf.filter import FrameStats
 
     flt._add_observations(obs, 0, FrameStats())

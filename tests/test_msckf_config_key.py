@@ -17,7 +17,8 @@ the depth front end's tight gate (``gate_noise`` 0.0005 + ``gate_depth_scale`` 0
 (stop 41) from eb145e291d11ca40 / 3e1cce0ee7ef4dea, and ``depth_sigma_scale`` (stop 42, 1 = off) from
 818c24d0a25cbc79 / b479da2117abe716, and ``gate_depth_scale`` 0.1 → 0.03 by default (stop 43) from
 65ee772b8395b1d4 / 981d481161a82396, and the front end's ``klt_fb_max_px`` (stop 45, 0 = off) from
-911d0e7895695d16 / 24cd55104d428aa3.
+911d0e7895695d16 / 24cd55104d428aa3, and ``depth_min_rel_sigma`` (stop 46, 0 = off) from 7a0bdb88a6532eda /
+a6d0fc094c81d1cb.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "7a0bdb88a6532eda"
+DEFAULT_MSCKF_HASH = "15ae15411194b075"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "a6d0fc094c81d1cb"
+DEFAULT_JOB_KEY = "f61e193028f9361d"
 
 
 def _job_key(msckf: dict) -> str:

@@ -412,6 +412,25 @@ def test_fills_only_unmeasured_ignores_the_filled_observations_of_measured_track
     assert not np.array_equal(run(c, True), run(d, True))       # a track with only filled depths keeps them
 
 
+def test_depth_min_rel_sigma_raises_a_stated_sigma_to_the_floor_and_leaves_larger_ones():
+    """``depth_min_rel_sigma`` f: a reading that states σ_Z < f·Z is used exactly as one that states f·Z (the same
+    estimate, bit for bit); a reading that states more is untouched; without the floor the small σ counts."""
+    from dataclasses import replace
+    w = make_world(seed=4, duration=2.0, max_features=100, depth_mode=True, depth_rel_sigma=0.005)
+
+    def stating(rel: float):
+        return replace(w, frames=[replace(f, depth_sigma_m=rel * f.depth_m) for f in w.frames])
+
+    floored, _ = _depth_run(stating(0.005), depth_min_rel_sigma=0.03)
+    told, _ = _depth_run(stating(0.03))
+    own, _ = _depth_run(stating(0.005))
+    assert len(floored) > 10
+    np.testing.assert_array_equal(floored, told)
+    assert not np.allclose(floored, own, rtol=1e-6, atol=1e-9)
+    above, _ = _depth_run(stating(0.05), depth_min_rel_sigma=0.03)
+    np.testing.assert_array_equal(above, _depth_run(stating(0.05))[0])
+
+
 def test_depth_sigma_scale_weighs_depth_rows_at_k_sigma_in_the_update_only():
     """``depth_sigma_scale`` k: the update (and triangulation) weigh every depth reading as if its σ were k × its
     own — the same estimate as a filter told k × σ, when neither gates anything — while the χ² gate tests the
