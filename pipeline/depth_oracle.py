@@ -43,7 +43,7 @@ from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "snap_to_true_points", "Rung",
            "EXACT_SIGMA_REL", "PAIR_CHECKS", "standard_rungs", "structure_rungs", "non_point_rungs", "run_backend",
-           "NeesAccumulator", "evaluate_rung"]
+           "NeesAccumulator", "evaluate_rung", "ate_against_truth"]
 
 
 @dataclass
@@ -648,6 +648,28 @@ class NeesAccumulator:
 def _observations(fr: TrackedFrame, xy1: np.ndarray, z0: np.ndarray, src: np.ndarray,
                   sigma0: np.ndarray | None, measured: np.ndarray | None = None) -> FeatureObservations:
     return FeatureObservations(fr.stamp_s, fr.ids, fr.xy0, xy1, z0, src, fr.track_length, sigma0, measured)
+
+
+def ate_against_truth(traj: Trajectory, truth: TrueImuPoses) -> float:
+    """ATE RMSE (m) of the estimate's IMU positions against the simulator's true IMU positions *at the estimate's
+    own stamps* (the truth is sampled at the IMU rate and interpolated), after an SE(3) alignment.
+
+    The GT file a run is evaluated against is the antenna path at 5 Hz, associated with the 15 Hz estimate by nearest
+    stamp within 20 ms (as evo does): every pair then carries a time offset of up to 20 ms, the same in every pair
+    when the two clocks' phases are fixed, so even the true trajectory scores an ATE (measured, stop 46:
+    rosario-like-03 10 s, 0.0075 m, Sim(3) scale 1.0039 — the true trajectory looks 0.4 % short). At the mm level of
+    the 10 s ladder that artifact can decide a comparison; this evaluation has none (the truth scores 0).
+
+    Raises:
+        EvalInputError: fewer than 3 estimate stamps within the truth's span, or a degenerate alignment.
+    """
+    t = traj.stamps_s
+    keep = (t >= truth.t_s[0]) & (t <= truth.t_s[-1])
+    t = t[keep]
+    ref_p = np.stack([np.interp(t, truth.t_s, truth.p_E[:, k]) for k in range(3)], axis=1)
+    ref = Trajectory(t, ref_p, np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)), has_orientation=False)
+    est = Trajectory(t, traj.positions[keep], traj.quats_xyzw[keep], has_orientation=traj.has_orientation)
+    return float(evaluate(ref, est, EvalOptions(align="se3", max_diff_s=1e-6)).metrics()["ate_rmse_m"])
 
 
 def evaluate_rung(traj: Trajectory, gt_path: str, lever_arm_imu: Any) -> float:

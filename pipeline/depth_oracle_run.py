@@ -24,6 +24,7 @@ from pipeline.depth_oracle import (
     NeesAccumulator,
     Rung,
     TrackLog,
+    ate_against_truth,
     evaluate_rung,
     record_tracks,
     run_backend,
@@ -139,6 +140,7 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
     out: dict[str, dict[str, Any]] = {}
     for rung in rungs:
         ate: dict[int, float] = {}
+        ate_truth: dict[int, float] = {}
         failed: dict[int, str] = {}
         stats: dict[int, dict[str, Any]] = {}
         for seed, log in prepared["logs"].items():
@@ -150,9 +152,13 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
                 continue
             try:
                 ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+                if prepared.get("imu_truth") is not None:
+                    ate_truth[seed] = ate_against_truth(traj, prepared["imu_truth"])
             except EvalInputError as exc:      # e.g. a clip too short to align: a failed run, not a lost ladder
+                ate.pop(seed, None)
                 failed[seed] = f"evaluation: {exc}"
-        out[rung.name] = {"ate": ate, "failed": failed, "chain": rung.chain, "order": rung.order,
+        out[rung.name] = {"ate": ate, "ate_truth": ate_truth, "failed": failed, "chain": rung.chain,
+                          "order": rung.order,
                           "depth_fraction": float(np.mean([s["depth_fraction"] for s in stats.values()])),
                           "gated_out": int(sum(s["gated_out"] for s in stats.values())),
                           "depth_fallback": int(sum(s["depth_fallback"] for s in stats.values())),
@@ -235,6 +241,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     if true_acc_bias:
         imu = imu_without_true_acc_bias(imu, sim.truth)
     ate: dict[int, float] = {}
+    ate_truth: dict[int, float] = {}
     failed: dict[int, str] = {}
     gamma_medians: list[float] = []
     nees_stats: list[dict[str, float]] = []
@@ -268,10 +275,13 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                           has_orientation=True)
         try:
             ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
+            if prepared.get("imu_truth") is not None:
+                ate_truth[seed] = ate_against_truth(traj, prepared["imu_truth"])
         except EvalInputError as exc:
+            ate.pop(seed, None)
             failed[seed] = f"evaluation: {exc}"
             continue
         nees_stats.append(nees.stats())
-    return {"ate": ate, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
+    return {"ate": ate, "ate_truth": ate_truth, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
             "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan"),
             **_mean_nees(nees_stats)}

@@ -140,6 +140,34 @@ def test_ladder_verdict_is_not_monotone_when_nothing_was_compared():
     assert ladder_verdict({"s": disjoint}) == (True, [])
 
 
+def test_ate_against_truth_samples_the_truth_at_the_estimates_own_stamps():
+    """The truth (IMU rate) is interpolated at the estimate's stamps: the true trajectory, rigidly moved and sampled
+    at other stamps, scores 0; one that runs 20 ms late scores what 20 ms of motion is; a rung's estimate outside
+    the truth's span is not compared."""
+    from scipy.spatial.transform import Rotation
+
+    from eval.trajectory import Trajectory
+    from pipeline.depth_oracle import ate_against_truth
+    from pipeline.oracle_truth import TrueImuPoses
+
+    t = np.arange(0.0, 10.0, 1.0 / 142.0)
+    p = np.stack([0.03 * t ** 2, np.sin(0.5 * t), 0.05 * t], axis=1)      # speeding up to 0.6 m/s, weaving
+    truth = TrueImuPoses(t, p, np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)))
+    ts = np.arange(0.013, 9.9, 1.0 / 15.0)
+    R = Rotation.from_euler("z", 40, degrees=True)
+
+    def est(shift_s: float) -> Trajectory:
+        q = np.stack([np.interp(ts - shift_s, t, p[:, k]) for k in range(3)], axis=1)
+        return Trajectory(ts, R.apply(q) + [3.0, -2.0, 1.0], np.tile([0.0, 0.0, 0.0, 1.0], (len(ts), 1)))
+
+    assert ate_against_truth(est(0.0), truth) < 2e-4                    # linear interpolation at 142 Hz
+    late = ate_against_truth(est(0.02), truth)
+    assert 2e-3 < late < 0.02 * 0.8                                    # a 20 ms lag at ≤ 0.8 m/s: mm, not 0
+    longer = Trajectory(np.r_[ts, 12.0], np.r_[est(0.0).positions, [[0.0, 0.0, 0.0]]],
+                        np.tile([0.0, 0.0, 0.0, 1.0], (len(ts) + 1, 1)))
+    assert ate_against_truth(longer, truth) < 2e-4                       # the stamp past the truth is left out
+
+
 def test_replayed_raw_rung_reproduces_the_pipeline_depth_raw_run(sim_cache, tmp_path, monkeypatch):
     """The ladder is only meaningful if its back-end replay of recorded tracks *is* the depth-raw run: with the
     same configuration the raw rung's trajectory equals the run's estimate.tum exactly."""
