@@ -338,6 +338,11 @@ class Rung:
     keep_mono: bool = False
 
 
+def _raw_measured(log: TrackLog, i: int) -> np.ndarray:
+    """(N,) True where frame ``i``'s raw SGBM map measured a depth (what the pipeline flags as measured)."""
+    return np.isfinite(log.frames[i].z_rect["raw"])
+
+
 def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[float] = (0.01, 0.03, 0.10),
                    noise_seed: int = 0, exact_sigma_rel: float = EXACT_SIGMA_REL,
                    track_noise_levels: Iterable[float] = ()) -> list[Rung]:
@@ -421,9 +426,6 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
     def no_depth(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
         return np.full(len(log.frames[i].ids), np.nan), None
 
-    def raw_measured(log: TrackLog, i: int) -> np.ndarray:
-        return np.isfinite(log.frames[i].z_rect["raw"])
-
     def inpainted(name: str) -> Callable[[TrackLog, int], tuple[np.ndarray, np.ndarray | None]]:
         def f(log: TrackLog, i: int) -> tuple[np.ndarray, np.ndarray | None]:
             fr = log.frames[i]
@@ -431,17 +433,17 @@ def standard_rungs(inpaint_methods: Iterable[str] = (), noise_levels: Iterable[f
         return f
 
     noise_levels = tuple(noise_levels)
-    rungs = [Rung("depth-raw", raw, measured=raw_measured), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
+    rungs = [Rung("depth-raw", raw, measured=_raw_measured), Rung("depth-raw@tracked-point", raw_tracked, "value", 1),
              Rung("exact@raw-valid", exact_raw, "value", 0), Rung("exact-everywhere", exact_all, "noise", 0)]
     for k, lv in enumerate(noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%", noisy(lv), "noise", k + 1))
     # no depth at all: the σ → ∞ end of the noise chain (a depth stated with its true σ must not hurt)
     rungs.append(Rung("mono", no_depth, "noise", len(noise_levels) + 1, keep_mono=True))
-    rungs.append(Rung("inpainted[exact]", perfect_fill, measured=raw_measured))
+    rungs.append(Rung("inpainted[exact]", perfect_fill, measured=_raw_measured))
     for k, lv in enumerate(track_noise_levels):
         rungs.append(Rung(f"exact+{lv * 100:g}%/track", per_track(lv), "track-noise", k + 1))
     for m in inpaint_methods:
-        rungs.append(Rung(f"inpainted[{m}]", inpainted(m), measured=raw_measured))
+        rungs.append(Rung(f"inpainted[{m}]", inpainted(m), measured=_raw_measured))
     return rungs
 
 
@@ -535,11 +537,8 @@ def non_point_rungs() -> list[Rung]:
         keep = src != 1
         return np.where(keep, z, np.nan), None if s is None else np.where(keep, s, np.nan)
 
-    def raw_measured(log: TrackLog, i: int) -> np.ndarray:
-        return np.isfinite(log.frames[i].z_rect["raw"])
-
-    return [Rung("raw+map@non-point", map_at_non_point, measured=raw_measured),
-            Rung("raw@non-point", non_point_only, measured=raw_measured)]
+    return [Rung("raw+map@non-point", map_at_non_point, measured=_raw_measured),
+            Rung("raw@non-point", non_point_only, measured=_raw_measured)]
 
 
 def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_sigma: bool = True,
@@ -663,12 +662,8 @@ def ate_against_truth(traj: Trajectory, truth: TrueImuPoses) -> float:
     Raises:
         EvalInputError: fewer than 3 estimate stamps within the truth's span, or a degenerate alignment.
     """
-    t = traj.stamps_s
-    keep = (t >= truth.t_s[0]) & (t <= truth.t_s[-1])
-    t = t[keep]
-    ref_p = np.stack([np.interp(t, truth.t_s, truth.p_E[:, k]) for k in range(3)], axis=1)
-    ref = Trajectory(t, ref_p, np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)), has_orientation=False)
-    est = Trajectory(t, traj.positions[keep], traj.quats_xyzw[keep], has_orientation=traj.has_orientation)
+    est = traj.subset((traj.stamps_s >= truth.t_s[0]) & (traj.stamps_s <= truth.t_s[-1]))
+    ref = Trajectory.from_positions(est.stamps_s, truth.positions(est.stamps_s))
     return float(evaluate(ref, est, EvalOptions(align="se3", max_diff_s=1e-6)).metrics()["ate_rmse_m"])
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from eval.errors import EvalInputError
+from eval.trajectory import Trajectory
 from msckf.config import MsckfConfig, load_config
 from pipeline.bag_reader import RosarioSequence
 from pipeline.depth import DepthParams, to_grey
@@ -131,6 +132,14 @@ def _depth_errors(logs: dict[int, TrackLog], methods: Sequence[str]) -> dict[str
     return out
 
 
+def _scores(traj: Trajectory, prepared: dict[str, Any]) -> tuple[float, float | None]:
+    """ATE RMSE (m) of one run against the GT file as a run computes it, and against the true IMU trajectory where
+    ``prepared`` has it (else None). Raises ``EvalInputError`` when either cannot be computed."""
+    truth = prepared.get("imu_truth")
+    return (evaluate_rung(traj, prepared["gt"], prepared["lever"]),
+            None if truth is None else ate_against_truth(traj, truth))
+
+
 def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] | None = None,
                methods: Sequence[str] = (), use_sigma: bool = True) -> dict[str, dict[str, Any]]:
     """ATE RMSE of every rung for every seed: ``{rung: {"ate": {seed: m}, "failed": {seed: reason}, ...}}``, with the
@@ -151,12 +160,12 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
                 failed[seed] = failure or "no poses"
                 continue
             try:
-                ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
-                if prepared.get("imu_truth") is not None:
-                    ate_truth[seed] = ate_against_truth(traj, prepared["imu_truth"])
+                ate[seed], truth_ate = _scores(traj, prepared)
             except EvalInputError as exc:      # e.g. a clip too short to align: a failed run, not a lost ladder
-                ate.pop(seed, None)
                 failed[seed] = f"evaluation: {exc}"
+                continue
+            if truth_ate is not None:
+                ate_truth[seed] = truth_ate
         out[rung.name] = {"ate": ate, "ate_truth": ate_truth, "failed": failed, "chain": rung.chain,
                           "order": rung.order,
                           "depth_fraction": float(np.mean([s["depth_fraction"] for s in stats.values()])),
@@ -231,7 +240,6 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                      max_frames: int | None = None, true_acc_bias: bool = False) -> dict[str, Any]:
     """The stereo front end's ATE on the same sequence and seeds (same evaluation as the rungs); with
     ``true_acc_bias`` fed the IMU without the simulator's accelerometer bias, as :func:`prepare_oracle`."""
-    from eval.trajectory import Trajectory
     from msckf.errors import FilterDivergedError
     from msckf.vio import Msckf
 
@@ -274,13 +282,12 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
         try:
-            ate[seed] = evaluate_rung(traj, prepared["gt"], prepared["lever"])
-            if prepared.get("imu_truth") is not None:
-                ate_truth[seed] = ate_against_truth(traj, prepared["imu_truth"])
+            ate[seed], truth_ate = _scores(traj, prepared)
         except EvalInputError as exc:
-            ate.pop(seed, None)
             failed[seed] = f"evaluation: {exc}"
             continue
+        if truth_ate is not None:
+            ate_truth[seed] = truth_ate
         nees_stats.append(nees.stats())
     return {"ate": ate, "ate_truth": ate_truth, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
             "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan"),

@@ -59,8 +59,12 @@ class TrueImuPoses:
         """
         if not self.covers(t_s):
             raise ValueError(f"t = {t_s:.6f} s is outside the truth's span {self.t_s[0]:.3f}–{self.t_s[-1]:.3f} s")
-        p = np.array([np.interp(t_s, self.t_s, self.p_E[:, k]) for k in range(3)])
-        return self._slerp([t_s]).as_matrix()[0], p
+        return self._slerp([t_s]).as_matrix()[0], self.positions(np.array([t_s]))[0]
+
+    def positions(self, t_s: np.ndarray) -> np.ndarray:
+        """(M, 3) p_E (m) at the (M,) stamps ``t_s`` (s), linear in time; stamps outside the span get the end values
+        (callers keep to :meth:`covers`)."""
+        return np.stack([np.interp(t_s, self.t_s, self.p_E[:, k]) for k in range(3)], axis=1)
 
     @cached_property
     def _slerp(self) -> Slerp:
