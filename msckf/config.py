@@ -97,6 +97,9 @@ FLAT_KEYS: dict[str, str] = {
     "init_max_acc_std": "init",
     "init_max_acc_drift": "init",
     "init_max_gyro_drift": "init",
+    "static_bias_from_window": "init",
+    "static_velocity_cov": "init",
+    "static_tilt_from_acc_bias": "init",
     "max_speed": "health",
     "frame_rate": "health",
 }

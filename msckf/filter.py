@@ -22,8 +22,8 @@ from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
 from msckf.propagation import propagate_samples
-from msckf.rotation import matrix_to_quat_xyzw, orthonormalize, so3_log
-from msckf.state import IMU_DIM, CloneStore, FeatureStore, ImuState, initial_covariance
+from msckf.rotation import matrix_to_quat_xyzw, orthonormalize, skew, so3_log
+from msckf.state import BA, BG, IMU_DIM, TH, VEL, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (
@@ -214,10 +214,33 @@ class MsckfFilter:
         self.init_result = res
         # [port] S-MSCKF jumps the state time to the first image (assuming the robot is still at rest);
         # here the state is propagated from the end of the init window through every later sample.
-        self.initialize(res.t_end, res.R_w_i, gyro_bias=res.gyro_bias, gravity_norm=res.gravity_norm)
+        self.initialize(res.t_end, res.R_w_i, gyro_bias=res.gyro_bias, gravity_norm=res.gravity_norm,
+                        covariance=self._static_init_cov(res))
 
     def _initial_cov(self) -> np.ndarray:
         return initial_covariance(self.config.init)
+
+    def _static_init_cov(self, res: StaticInit) -> np.ndarray:
+        """The initial covariance after a static initialisation: the configured one, with the gyro-bias variance
+        the window measured and the velocity variance of a verified standstill (``InitOptions`` says why)."""
+        init = self.config.init
+        P = self._initial_cov()
+        if init.static_bias_from_window:
+            # the bias at the window's end differs from its mean over the window by a random walk: variance σ²·T/3
+            walk = self.config.imu_noise.gyro_bias_noise ** 2 * res.duration_s / 3.0
+            P[BG, BG] = np.diag(np.asarray(res.gyro_bias_var, dtype=np.float64) + walk)
+        if init.static_velocity_cov > 0:
+            P[VEL, VEL] = init.static_velocity_cov * np.eye(3)
+        if init.static_tilt_from_acc_bias:
+            # The window's mean specific force a = Rᵀ·g·ẑ + b_a fixes the gravity direction with the accelerometer
+            # bias in it: the roll/pitch error (IMU frame) is δθ = [u]× b_a / g, u = the body-frame up direction.
+            u = res.R_w_i.T @ np.array([0.0, 0.0, 1.0])
+            J = skew(u) / res.gravity_norm
+            cross = J @ P[BA, BA]
+            P[TH, TH] = cross @ J.T
+            P[TH, BA] = cross
+            P[BA, TH] = cross.T
+        return P
 
     def _drop_imu_before(self, t: float) -> None:
         i = 0

@@ -38,6 +38,9 @@ class StaticInit:
         R_w_i: (3, 3) initial IMU → world rotation (gravity aligned, yaw arbitrary).
         gyro_bias: (3,) rad/s. gravity_norm: |g| in m/s². t_end: stamp of the last sample used, s.
         gyro_std, acc_std: (3,) per-axis standard deviations over the window (rad/s, m/s²).
+        gyro_bias_var: (3,) per-axis variance of ``gyro_bias`` as a measurement, (rad/s)²: the window's sample
+            variance of the angular rate over the number of samples (the bias is the window's mean rate).
+        duration_s: time spanned by the window, s.
     """
 
     R_w_i: np.ndarray
@@ -46,6 +49,8 @@ class StaticInit:
     t_end: float
     gyro_std: np.ndarray
     acc_std: np.ndarray
+    gyro_bias_var: np.ndarray
+    duration_s: float
 
 
 def static_initialize(t_s: np.ndarray, gyro: np.ndarray, acc: np.ndarray, options: InitOptions) -> StaticInit:
@@ -97,4 +102,5 @@ def static_initialize(t_s: np.ndarray, gyro: np.ndarray, acc: np.ndarray, option
             + ". S-MSCKF's static initialisation needs the robot standing still at the start "
               "(skip the moving part, or raise the init_max_* limits if this is vibration at rest).")
     R_w_i = from_two_vectors(a_mean, np.array([0.0, 0.0, 1.0]))
-    return StaticInit(R_w_i, g_mean, g_norm, float(t_s[-1]), g_std, a_std)
+    g_var_mean = gyro.var(axis=0, ddof=1) / n if n > 1 else np.zeros(3)
+    return StaticInit(R_w_i, g_mean, g_norm, float(t_s[-1]), g_std, a_std, g_var_mean, float(t_s[-1] - t_s[0]))

@@ -18,7 +18,9 @@ the depth front end's tight gate (``gate_noise`` 0.0005 + ``gate_depth_scale`` 0
 818c24d0a25cbc79 / b479da2117abe716, and ``gate_depth_scale`` 0.1 → 0.03 by default (stop 43) from
 65ee772b8395b1d4 / 981d481161a82396, and the front end's ``klt_fb_max_px`` (stop 45, 0 = off) from
 911d0e7895695d16 / 24cd55104d428aa3, and ``depth_min_rel_sigma`` (stop 46, 0 = off) from 7a0bdb88a6532eda /
-a6d0fc094c81d1cb.
+a6d0fc094c81d1cb, and the static initialisation's measured covariance (``static_bias_from_window``,
+``static_velocity_cov``, ``static_tilt_from_acc_bias``; stop 47, on: every run changes) from 15ae15411194b075 /
+f61e193028f9361d.
 """
 
 from __future__ import annotations
@@ -28,9 +30,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "15ae15411194b075"
+DEFAULT_MSCKF_HASH = "62c258e6667236ff"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "f61e193028f9361d"
+DEFAULT_JOB_KEY = "bbafdd7217e3e782"
 
 
 def _job_key(msckf: dict) -> str:

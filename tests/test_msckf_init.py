@@ -82,3 +82,57 @@ def test_filter_can_wait_for_a_still_period_after_a_moving_start():
     assert errors >= 1 and flt.initialized
     assert flt.init_result.t_end > 1.5 + (N - 1) / RATE - 1e-9   # the accepted window is all still
     assert np.allclose(flt.init_result.gyro_bias, bias, atol=4 * 0.005 / np.sqrt(N))
+
+
+def _initialised_filter(R_w_i, gyro_bias, acc_bias, rng, **init_overrides):
+    """A filter statically initialised on a still window whose accelerometer reads ``acc_bias`` too."""
+    from dataclasses import replace
+
+    from msckf.filter import MsckfFilter
+
+    cfg = MsckfConfig()
+    # the window's IMU has a constant bias: (next to) no random walk in the filter's model either
+    cfg = replace(cfg, init=replace(cfg.init, **init_overrides), imu_noise=replace(cfg.imu_noise, gyro_bias_noise=1e-9))
+    flt = MsckfFilter(cfg, np.eye(4), np.eye(4))
+    t, g, a = _window(R_w_i, gyro_bias, rng)
+    for k in range(N):
+        flt.feed_imu(t[k], g[k], a[k] + acc_bias)
+    assert flt.state is not None
+    return flt
+
+
+def test_static_initial_covariance_covers_the_errors_the_window_leaves():
+    """Right after a static initialisation the stated covariance must match the actual errors (NEES ≈ dof):
+    the gyro bias is the window's mean rate (its variance is that mean's), roll/pitch carry the accelerometer bias
+    the window cannot separate from gravity (δθ = [u]× b_a / g), the velocity is that of a robot standing still.
+    S-MSCKF's covariance (zero tilt, σ 0.1 rad/s gyro bias) fails this: the tilt NEES is undefined/huge."""
+    from msckf.state import BG, TH, VEL
+
+    rng = np.random.default_rng(7)
+    sigma_ba = np.sqrt(MsckfConfig().init.acc_bias_cov)
+    nees_tilt, nees_bg = [], []
+    for _ in range(60):
+        R_w_i = so3_exp(rng.normal(0.0, 0.5, 3))
+        bias = rng.normal(0.0, 0.003, 3)
+        b_a = rng.normal(0.0, sigma_ba, 3)
+        flt = _initialised_filter(R_w_i, bias, b_a, rng)
+        P = flt.P
+        # tilt error in the IMU frame (R_true = R_est · Exp(δθ)), yaw (about the up axis u) removed: it is the gauge
+        u = flt.state.R_w_i.T @ np.array([0.0, 0.0, 1.0])
+        R_err = flt.state.R_w_i.T @ R_w_i
+        d = np.array([R_err[2, 1] - R_err[1, 2], R_err[0, 2] - R_err[2, 0], R_err[1, 0] - R_err[0, 1]]) / 2.0
+        d = d - (d @ u) * u
+        basis = np.linalg.svd(np.eye(3) - np.outer(u, u))[0][:, :2]         # the two horizontal axes
+        e, S = basis.T @ d, basis.T @ P[TH, TH] @ basis
+        nees_tilt.append(e @ np.linalg.solve(S, e))
+        eb = flt.state.b_g - bias
+        nees_bg.append(eb @ np.linalg.solve(P[BG, BG], eb))
+        assert np.allclose(np.diag(P[VEL, VEL]), 1e-4)
+    # χ²(2) and χ²(3) means; 60 draws: a mean within ±50 % of the dof is consistent
+    assert 1.0 < np.mean(nees_tilt) < 3.0
+    assert 1.5 < np.mean(nees_bg) < 4.5
+    flt = _initialised_filter(so3_exp(np.array([0.3, -0.2, 0.1])), np.zeros(3), np.full(3, sigma_ba), rng,
+                              static_bias_from_window=False, static_velocity_cov=0.0,
+                              static_tilt_from_acc_bias=False)
+    assert np.all(flt.P[TH, TH] == 0.0)                                      # S-MSCKF: the tilt stated exact
+    assert np.allclose(np.diag(flt.P[BG, BG]), 0.01) and np.allclose(np.diag(flt.P[VEL, VEL]), 0.25)
