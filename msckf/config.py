@@ -68,6 +68,7 @@ FLAT_KEYS: dict[str, str] = {
     "track_drift_psd": "update",
     "max_update_rows": "update",
     "update_method": "update",
+    "retriangulate": "update",
     "depth_fallback": "update",
     "depth_fallback_measured": "update",
     "gate_depth_scale": "update",

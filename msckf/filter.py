@@ -698,15 +698,22 @@ class MsckfFilter:
         order = self._order()
         mask = fs.has[lost][:, order]
         n_obs = mask.sum(axis=1)
-        cand = lost[n_obs >= 3]
-        need = cand[~fs.initialized[cand]]
-        if len(need):
-            self._triangulate(need, st)
-        use = cand[fs.initialized[cand]]
+        use = self._positions_for_update(lost[n_obs >= 3], st)
         if len(use):
             m = fs.has[use][:, order]
             st.n_lost_used = self._update(use, m, m.sum(axis=1) - 1, st)
         fs.remove(lost)
+
+    def _positions_for_update(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
+        """The features (rows) that enter an update, each with a position triangulated from its current
+        observations: with ``update.retriangulate`` every one is triangulated again (a feature that fails is left
+        out), otherwise (S-MSCKF) only those never triangulated."""
+        fs = self.features
+        need = rows if self.config.update.retriangulate else rows[~fs.initialized[rows]]
+        if len(need):
+            fs.initialized[need] = False
+            self._triangulate(need, st)
+        return rows[fs.initialized[rows]]
 
     def _prune(self, tracking_rate: float, st: FrameStats) -> None:
         window = self.config.window
@@ -721,10 +728,7 @@ class MsckfFilter:
         cnt = inv.sum(axis=1)
         multi = alive[cnt >= 2]
         if len(multi):
-            need = multi[~fs.initialized[multi]]
-            if len(need):
-                self._triangulate(need, st)
-            use = multi[fs.initialized[multi]]
+            use = self._positions_for_update(multi, st)
             if len(use):
                 m = np.zeros((len(use), len(order)), dtype=bool)
                 m[:, rm_pos] = fs.has[use][:, rm]

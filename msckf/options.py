@@ -265,6 +265,14 @@ class UpdateOptions:
             0.161 → 0.151 m and Telea 0.168 → 0.119 m against depth-raw 0.112 m; 10 s 02 / 03 ``paper`` 0.0183 →
             0.0184 / 0.0330 → 0.0296 m; depth-raw and stereo unchanged: no filled depths); False rejects the whole
             feature. No effect on the ``stereo`` front end (no depth-map observations).
+        retriangulate: triangulate every feature that enters an update again from its current observations
+            [True]; False: S-MSCKF, which triangulates a feature once and reuses that position in every later
+            update (pruning uses a feature several times). A cached position is stale once the observations it
+            came from are pruned or its depths differ from the ones now in the window, and the null-space
+            projection only removes its first-order error: with tight depth rows the second-order rest is a bogus
+            correction (measured, stop 47, oracle ladder rosario-like-01 10 s: a track triangulated with a SGBM
+            depth 20 % short, later updated with exact fills, moved the accelerometer bias by 0.02 m/s² in one
+            update; perfect fills 0.0132 m → 0.0059 m ATE against the truth, depth-raw 0.0087 m unchanged).
         depth_fallback_measured: with ``depth_fallback``, measured (raw SGBM) depths are dropped on a re-gate too:
             a feature rejected with its depth-map observations is gated again from its pixels alone, whether its
             depths were filled or measured (a depth reading is its own measurement and may be the outlier; its
@@ -305,6 +313,7 @@ class UpdateOptions:
     max_update_rows: int = 0
     update_method: str = "qr"
     depth_fallback: bool = True
+    retriangulate: bool = True
     depth_fallback_measured: bool = False
     gate_depth_scale: float = 0.03
 
