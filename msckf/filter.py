@@ -222,7 +222,8 @@ class MsckfFilter:
 
     def _static_init_cov(self, res: StaticInit) -> np.ndarray:
         """The initial covariance after a static initialisation: the configured one, with the gyro-bias variance
-        the window measured and the velocity variance of a verified standstill (``InitOptions`` says why)."""
+        the window measured, the velocity variance of a verified standstill and the roll/pitch error the unknown
+        accelerometer bias leaves in the gravity direction (each switchable; ``InitOptions`` says why)."""
         init = self.config.init
         P = self._initial_cov()
         if init.static_bias_from_window:
