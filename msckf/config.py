@@ -69,6 +69,8 @@ FLAT_KEYS: dict[str, str] = {
     "max_update_rows": "update",
     "update_method": "update",
     "retriangulate": "update",
+    "zupt_max_flow": "update",
+    "zupt_velocity_sigma": "update",
     "depth_fallback": "update",
     "depth_fallback_measured": "update",
     "gate_depth_scale": "update",

@@ -48,6 +48,12 @@ from msckf.update import (
 __all__ = ["MsckfFilter", "FrameStats"]
 
 
+#: fewest features seen in both of the last two images for the zero-velocity test to decide anything
+ZUPT_MIN_FEATURES = 10
+#: χ²(3) 99 % quantile: the zero-velocity pseudo-measurement's gate
+ZUPT_CHI2_3DOF_99 = 11.344866730144373
+
+
 @dataclass
 class FrameStats:
     """What the filter did with one image (for logs, replay and benchmarks). Times in seconds.
@@ -56,7 +62,8 @@ class FrameStats:
     msckf_vio warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature
     that was gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
     ``n_depth_fallback``: features rejected with their depth-map observations and accepted without them
-    (``update.depth_fallback``); they are not counted in ``n_gated_out``.
+    (``update.depth_fallback``); they are not counted in ``n_gated_out``. ``zupt``: a zero-velocity update was made
+    (``update.zupt_max_flow``).
     """
 
     stamp_s: float = 0.0
@@ -73,6 +80,7 @@ class FrameStats:
     n_map: int = 0
     online_reset: bool = False
     over_budget: bool = False
+    zupt: bool = False
     timings: dict[str, float] = field(default_factory=dict)
     gate_gamma: list[np.ndarray] = field(default_factory=list)
     gate_dof: list[np.ndarray] = field(default_factory=list)
@@ -294,6 +302,7 @@ class MsckfFilter:
         t2 = time.perf_counter()
         tm["augment"] = t2 - t1
 
+        self._zero_velocity_update(cur_slot, st)
         self._remove_lost_features(cur_slot, st)
         t3 = time.perf_counter()
         tm["lost_update"] = t3 - t2
@@ -704,6 +713,39 @@ class MsckfFilter:
             m = fs.has[use][:, order]
             st.n_lost_used = self._update(use, m, m.sum(axis=1) - 1, st)
         fs.remove(lost)
+
+    def _zero_velocity_update(self, cur_slot: int, st: FrameStats) -> None:
+        """Zero-velocity update while the robot stands still (``update.zupt_max_flow``).
+
+        Standing still: the median image motion of the features seen in this image and the one before is at most
+        ``zupt_max_flow`` (normalised image coordinates; rotation moves the image, so a turn on the spot is never
+        taken for a stop) over at least ``ZUPT_MIN_FEATURES`` features. The pseudo-measurement v_world = 0 with σ
+        ``zupt_velocity_sigma`` (m/s) is χ²-gated (99 %, 3 dof) against the state, so a filter confident that it
+        moves is not stopped by a still image of a far scene. Without it nothing constrains the state while a robot
+        stands: no track is lost and the window does not prune until it is full.
+        """
+        c = self.config.update
+        if c.zupt_max_flow <= 0 or len(self.clones.order) < 2:
+            return
+        prev = self.clones.order[-2]
+        fs = self.features
+        alive = fs.alive_rows()
+        both = alive[fs.has[alive, cur_slot] & fs.has[alive, prev]]
+        if len(both) < ZUPT_MIN_FEATURES:
+            return
+        flow = np.linalg.norm(fs.obs[both, cur_slot, :2] - fs.obs[both, prev, :2], axis=1)
+        if np.median(flow) > c.zupt_max_flow:
+            return
+        v = self._initialised().v
+        PHt = self.P[:, VEL]
+        S = self.P[VEL, VEL] + c.zupt_velocity_sigma ** 2 * np.eye(3)
+        if float(v @ np.linalg.solve(S, v)) > ZUPT_CHI2_3DOF_99:
+            return
+        K = np.linalg.solve(S, PHt.T).T
+        P = self.P - K @ PHt.T - PHt @ K.T + K @ S @ K.T           # Joseph form for H = [0 … I_v … 0]
+        self.P = 0.5 * (P + P.T)
+        inject_correction(self._initialised(), self.clones, K @ (-v))
+        st.zupt = True
 
     def _positions_for_update(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
         """The features (rows) that enter an update, each with a position triangulated from its current
