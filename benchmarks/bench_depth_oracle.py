@@ -63,7 +63,7 @@ from pipeline.depth_oracle import (  # noqa: E402
     structure_rungs,
 )
 from pipeline.depth_oracle_run import default_config, ladder_verdict  # noqa: E402
-from pipeline.oracle_stage import check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
+from pipeline.oracle_stage import AGAINSTS, check_line, ladder_checks, rung_table, sequence_ladder  # noqa: E402
 from pipeline.oracle_truth import PINNED_ACC_BIAS  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="diagnostic: each track that is a 3-D point gets the exact projection of that point as its "
                          "pixels (no KLT error), so the ladder tells what the pixels of the features a depth adds "
                          "cost apart from their depths (the stereo reference keeps its own tracks)")
-    ap.add_argument("--against", choices=("gt", "truth"), default="truth",
+    ap.add_argument("--against", choices=AGAINSTS, default="truth",
                     help="what ATE is measured against (default: truth): the bag's GT file (5 Hz antenna path, "
                          "nearest stamp within 20 ms, as a run) or the simulator's true IMU trajectory at the "
                          "estimate's own stamps (pipeline.depth_oracle.ate_against_truth: no association artifact; "

@@ -50,8 +50,8 @@ __all__ = ["MsckfFilter", "FrameStats"]
 
 #: fewest features seen in both of the last two images for the zero-velocity test to decide anything
 ZUPT_MIN_FEATURES = 10
-#: χ²(3) 99 % quantile: the zero-velocity pseudo-measurement's gate
-ZUPT_CHI2_3DOF_99 = 11.344866730144373
+#: quantile of the zero-velocity pseudo-measurement's χ² gate (3 dof)
+ZUPT_GATE_QUANTILE = 0.99
 
 
 @dataclass
@@ -736,15 +736,16 @@ class MsckfFilter:
         flow = np.linalg.norm(fs.obs[both, cur_slot, :2] - fs.obs[both, prev, :2], axis=1)
         if np.median(flow) > c.zupt_max_flow:
             return
-        v = self._initialised().v
+        state = self._initialised()
+        v = state.v
         PHt = self.P[:, VEL]
         S = self.P[VEL, VEL] + c.zupt_velocity_sigma ** 2 * np.eye(3)
-        if float(v @ np.linalg.solve(S, v)) > ZUPT_CHI2_3DOF_99:
+        if float(v @ np.linalg.solve(S, v)) > float(chi2_threshold(ZUPT_GATE_QUANTILE, np.array(3))):
             return
         K = np.linalg.solve(S, PHt.T).T
         P = self.P - K @ PHt.T - PHt @ K.T + K @ S @ K.T           # Joseph form for H = [0 … I_v … 0]
         self.P = 0.5 * (P + P.T)
-        inject_correction(self._initialised(), self.clones, K @ (-v))
+        inject_correction(state, self.clones, K @ (-v))
         st.zupt = True
 
     def _positions_for_update(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:

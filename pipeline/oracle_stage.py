@@ -89,7 +89,6 @@ def check_line(seq: str, c: Mapping[str, Any]) -> str:
             f"{'yes' if c['exact_within_10pct_of_stereo'] else 'no'})")
 
 
-#: Shown under a ladder whose noise chain is violated (a less noisy depth doing worse): the known cause (stop 42).
 #: how the ladder's ATE was measured (``LadderResult.against``)
 AGAINST_TEXT = {
     "gt": "against the simulator's true antenna positions (the 5 Hz GT file, nearest stamp within 20 ms)",
@@ -98,6 +97,7 @@ AGAINST_TEXT = {
 }
 AGAINSTS = tuple(AGAINST_TEXT)
 
+#: Shown under a ladder whose noise chain is violated (a less noisy depth doing worse): its history (stops 42, 47).
 NOISE_CHAIN_NOTE = ("A violation in the noise chain (a less noisy depth doing worse): until stop 47 this was the 10 s "
                     "ladder's standing failure (exact + 1 % worse than + 3 %), blamed on the update's inflated pixel "
                     "σ; it went with the initial covariance of the static initialisation (README, What we measured). "
