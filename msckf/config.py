@@ -71,6 +71,7 @@ FLAT_KEYS: dict[str, str] = {
     "retriangulate": "update",
     "zupt_max_flow": "update",
     "zupt_velocity_sigma": "update",
+    "zupt_only_at_start": "update",
     "depth_fallback": "update",
     "depth_fallback_measured": "update",
     "gate_depth_scale": "update",

@@ -139,6 +139,8 @@ class MsckfFilter:
         self._last_frame_t = -np.inf
         self.n_online_resets = 0
         self.last_stats = FrameStats()
+        #: the robot was seen moving (``update.zupt_only_at_start``: no zero-velocity update from then on)
+        self.has_moved = False
 
     # ------------------------------------------------------------------------------------------ input
     @property
@@ -722,10 +724,13 @@ class MsckfFilter:
         taken for a stop) over at least ``ZUPT_MIN_FEATURES`` features. The pseudo-measurement v_world = 0 with σ
         ``zupt_velocity_sigma`` (m/s) is χ²-gated (99 %, 3 dof) against the state, so a filter confident that it
         moves is not stopped by a still image of a far scene. Without it nothing constrains the state while a robot
-        stands: no track is lost and the window does not prune until it is full.
+        stands: no track is lost and the window does not prune until it is full. With ``update.zupt_only_at_start``
+        the first image whose features moved (``has_moved``) ends the zero-velocity updates for the run: only the
+        stand the static initialisation verified is taken for one (a per-image flow test cannot tell a robot creeping
+        at a few cm/s from a standing one).
         """
         c = self.config.update
-        if c.zupt_max_flow <= 0 or len(self.clones.order) < 2:
+        if c.zupt_max_flow <= 0 or len(self.clones.order) < 2 or (c.zupt_only_at_start and self.has_moved):
             return
         prev = self.clones.order[-2]
         fs = self.features
@@ -735,6 +740,7 @@ class MsckfFilter:
             return
         flow = np.linalg.norm(fs.obs[both, cur_slot, :2] - fs.obs[both, prev, :2], axis=1)
         if np.median(flow) > c.zupt_max_flow:
+            self.has_moved = True
             return
         state = self._initialised()
         v = state.v

@@ -508,7 +508,8 @@ def test_zero_velocity_update_fires_while_the_robot_stands_and_only_then():
                    pixel_sigma=0.2)
     moving_from = 2.5                                           # the ramp starts at start_still
     for zupt in (0.001, 0.0):
-        flt = MsckfFilter(matched_config(zupt_max_flow=zupt, velocity_cov=0.25), w.T_cam0_imu, w.T_cam1_cam0)
+        flt = MsckfFilter(matched_config(zupt_max_flow=zupt, velocity_cov=0.25, zupt_only_at_start=False),
+                          w.T_cam0_imu, w.T_cam1_cam0)
         flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
         fired, still_frames, v_sigma_end_of_stand = [], 0, None
         for m, _ in iterate(w, flt):
@@ -530,3 +531,52 @@ def test_zero_velocity_update_fires_while_the_robot_stands_and_only_then():
         else:
             assert not any(f for _, f in fired)
             assert v_sigma_end_of_stand > 0.05                     # the IMU alone leaves it loose
+
+
+class _StopAndGo(Trajectory):
+    """Stands, drives at ``speed`` and stands again: the time warp's rate s'(t) ramps 0 → 1 over ``go`` and
+    1 → 0 over ``stop`` (each (start s, duration s), smoothstep C², as ``Trajectory``'s start)."""
+
+    go: tuple[float, float] = (1.5, 1.5)
+    stop: tuple[float, float] = (4.0, 1.5)
+
+    def _s(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = np.asarray(t, dtype=np.float64)
+        s, sd, sdd = np.zeros_like(t), np.zeros_like(t), np.zeros_like(t)
+        for (t0, T), step in ((self.go, 1.0), (self.stop, -1.0)):
+            u = np.clip((t - t0) / T, 0.0, 1.0)
+            s += step * (T * (u**6 - 3 * u**5 + 2.5 * u**4) + np.maximum(t - t0 - T, 0.0))
+            sd += step * (6 * u**5 - 15 * u**4 + 10 * u**3)
+            sdd += step * np.where((u > 0) & (u < 1), (30 * u**4 - 60 * u**3 + 30 * u**2) / T, 0.0)
+        return s, sd, sdd
+
+
+def test_zero_velocity_update_only_at_start_ends_once_the_robot_moved():
+    """``update.zupt_only_at_start`` (default): the zero-velocity update fires while the robot stands at the start
+    and never again once it was seen moving — not in a second stand either (a per-image flow test cannot tell a
+    robot creeping at a few cm/s from a standing one, README); with it off the second stand gets it too."""
+    traj = _StopAndGo()
+    # 0.1 px white pixel noise: median image motion ≈ 0.17 px while standing, half the 0.001 (0.35 px at this
+    # world's fx) threshold — one image above it would (correctly) end the zero-velocity updates here
+    w = make_world(seed=4, duration=7.5, max_features=150, trajectory=traj, depth_mode=True, depth_rel_sigma=0.01,
+                   pixel_sigma=0.1)
+    _, v, _ = traj.position(w.frame_t)
+    speed = np.linalg.norm(v, axis=1)
+    first_stand = w.frame_t < traj.go[0]
+    second_stand = w.frame_t > sum(traj.stop)
+    assert np.all(speed[first_stand | second_stand] < 1e-9) and speed.max() > 0.9
+    fired = {}
+    for only_at_start in (True, False):
+        flt = MsckfFilter(matched_config(zupt_max_flow=0.001, velocity_cov=0.25, zupt_only_at_start=only_at_start),
+                          w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        f = np.zeros(len(w.frame_t), dtype=bool)
+        for m, _ in iterate(w, flt):
+            f[m] = flt.last_stats.zupt
+        fired[only_at_start] = f
+        assert flt.has_moved
+    for f in fired.values():
+        assert np.mean(f[first_stand][1:]) >= 0.85            # the first image has no image before it
+    moving = w.frame_t > traj.go[0] + 0.5                      # the ramp's first 0.5 s (< 5 cm/s) may look still
+    assert not fired[True][moving].any()
+    assert np.mean(fired[False][second_stand]) >= 0.85
