@@ -1,10 +1,12 @@
 """The report's "depth given to the filter and χ² gate" table: per sequence × variant, medians over runs of what
 each run record states about the depth its features carried (measured vs filled, stated σ_Z/Z) and about the
-filter's χ² gate (γ/dof ≈ 1 when the measurement noise is calibrated; rejected fraction).
+filter's χ² gate (γ/dof ≈ 1 when the measurement noise is calibrated; rejected fraction) and about its zero-velocity
+updates (how many images, the last one's time).
 
-Reads only the records' ``feature_depth`` and ``chi2_gate`` entries (written by the pipeline's run stage); runs
-without them are skipped, so the table is absent for old records. The caption names the depth gate's scale
-allowance the runs used (``input_key_parts.msckf.gate_depth_scale``), not a default that may have changed since.
+Reads only the records' ``feature_depth``, ``chi2_gate`` and ``zero_velocity`` entries (written by the pipeline's
+run stage); runs without them are skipped, so the table is absent for old records. The caption names the depth
+gate's scale allowance the runs used (``input_key_parts.msckf.gate_depth_scale``), not a default that may have
+changed since.
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ _COLUMNS = (("feature_depth", "filled_fraction", "filled share of feature depths
             ("feature_depth", "occlusion_edge_fill_fraction", "fill pixels at occlusion edges", "{:.0%}"),
             ("chi2_gate", "gamma_per_dof_median", "γ/dof median", "{:.3f}"),
             ("chi2_gate", "gamma_per_dof_mean", "γ/dof mean", "{:.2f}"),
-            ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"))
+            ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"),
+            ("zero_velocity", "frames", "zero-velocity updates (images)", "{:.0f}"),
+            ("zero_velocity", "last_s", "last zero-velocity update (s)", "{:.1f}"))
 
 
 def instrument_table(records: Sequence[RunRecord]) -> str | None:
@@ -64,5 +68,7 @@ def instrument_table(records: Sequence[RunRecord]) -> str | None:
             "*γ/dof*: the χ² statistic per degree of freedom of every gated feature; ≈ 1 for a calibrated gate. "
             "Both front ends gate their pixels with σ ≈ 0.18 px (`gate_noise`, `stereo_gate_noise`); the depth front "
             f"end's gate also allows one scale error shared by a feature's depth readings ({scale_note}), "
-            "and its γ/dof stays well below 1 (≈ 0.2; see the README).\n\n"
+            "and its γ/dof stays well below 1 (≈ 0.2; see the README). "
+            "*Zero-velocity updates*: images that got one (the robot standing at the start: `zupt_max_flow`, "
+            "`zupt_only_at_start`) and the last of them, in seconds after the run's first image.\n\n"
             + "\n".join(lines))

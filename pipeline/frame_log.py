@@ -106,6 +106,8 @@ class FrameLog:
         self._n_filled = 0
         self.gated = 0
         self.gated_out = 0
+        self.zupt_frames = 0
+        self.zupt_last_stamp_s = float("nan")
         self.fill_px = 0
         self.far_open_px = 0
         self.occlusion_edge_px = 0
@@ -142,10 +144,14 @@ class FrameLog:
         self.occlusion_edge_px += int(n_occlusion_edge_px)
 
     def add_gate(self, stats: Any) -> None:
-        """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature."""
+        """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature, and
+        whether the frame got a zero-velocity update (``FrameStats.zupt``, stamp ``FrameStats.stamp_s``)."""
         self._gate_ratio.extend(np.asarray(stats.gamma_per_dof(), dtype=np.float64).reshape(-1))
         self.gated += stats.n_gated
         self.gated_out += int(stats.n_gated_out)
+        if getattr(stats, "zupt", False):
+            self.zupt_frames += 1
+            self.zupt_last_stamp_s = float(stats.stamp_s)
 
     def add(self, stamp_s: float, debug: Any, elapsed_s: float) -> None:
         """One frame: its stamp, the VIO's per-frame debug (``msckf`` ``last_debug``, or None) and its VIO time."""
@@ -232,6 +238,13 @@ class FrameLog:
             return {}
         return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
                 "features_gated": self.gated, "rejected_fraction": float(self.gated_out / max(self.gated, 1))}
+
+    def zupt_summary(self) -> dict[str, float]:
+        """The zero-velocity updates of the run (``msckf`` ``update.zupt_max_flow``): how many images got one and
+        the last of them, in seconds after the run's first image; {} when none did."""
+        if self.zupt_frames == 0 or len(self) == 0:
+            return {}
+        return {"frames": self.zupt_frames, "last_s": self.zupt_last_stamp_s - float(self.stamps.view()[0])}
 
     def depth_summary(self) -> dict[str, float]:
         """How much of the run's feature depth was measured vs filled, and its stated σ_Z/Z (medians)."""

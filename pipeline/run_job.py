@@ -277,7 +277,8 @@ def run_job(job: Job) -> dict[str, Any]:
         gt_path=str(Path(plan.gt).resolve()) if plan.gt else None,
         extra={"eval_options": eval_options.to_dict(), "n_poses": int(len(est.stamps_s)),
                "frames": int(len(log)), "feature_depth": log.depth_summary(),
-               "chi2_gate": log.gate_summary(), "tracks": tracking, **{k: job.options.get(k) for k in RECORD_FIELDS},
+               "chi2_gate": log.gate_summary(), "zero_velocity": log.zupt_summary(), "tracks": tracking,
+               **{k: job.options.get(k) for k in RECORD_FIELDS},
                "job": job_description(job)},
     )
     return record.to_dict()

@@ -200,3 +200,25 @@ def test_fixed_mmap_threshold_is_set_where_glibc_is():
     from pipeline.run_job import fixed_mmap_threshold
 
     assert fixed_mmap_threshold() is (platform.system() == "Linux" and platform.libc_ver()[0] == "glibc")
+
+
+@dataclass
+class _ZuptStats(_Stats):
+    zupt: bool = False
+    stamp_s: float = 0.0
+
+
+def test_zero_velocity_summary_counts_the_images_that_got_one_and_the_last_of_them(tmp_path):
+    """The record's ``zero_velocity`` entry: images with a zero-velocity update (``FrameStats.zupt``) and the last
+    one's time after the run's first image; none: {} (no entry claims a count of 0 s)."""
+    log = FrameLog(tmp_path / "frames.npz")
+    t0 = 1e9
+    for i in range(30):
+        t = t0 + i / 15.0
+        log.add(t, None, 0.01)
+        log.add_gate(_ZuptStats(np.zeros(0), 0, 0, zupt=i in (1, 2, 3, 7), stamp_s=t))
+    assert log.zupt_summary() == {"frames": 4, "last_s": pytest.approx(7 / 15.0, abs=1e-6)}
+    quiet = FrameLog(tmp_path / "quiet.npz")
+    quiet.add(t0, None, 0.01)
+    quiet.add_gate(_Stats(np.zeros(0), 0, 0))                     # a stats object without the field: no update
+    assert quiet.zupt_summary() == {}

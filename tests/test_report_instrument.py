@@ -30,6 +30,10 @@ def test_instrument_table_gives_medians_per_variant_and_skips_failed_runs():
     assert "| 3 | 40% | 2.0% | 15.0% | 25% | 12% | 0.015 |" in lines["depth-inpainted[telea]"]  # the failed run is out
     assert instrument_table([RunRecord("seq", "stereo", 0)]) is None
     assert "(`gate_depth_scale` 3%, 10% in these runs)" in md          # what the runs used, not today's default
+    assert lines["depth-raw"].endswith("| – | – |")                  # no zero-velocity entry: no value claimed
+    stood = [RunRecord("seq", "stereo", s, extra={"zero_velocity": {"frames": n, "last_s": 1.0 + s}})
+             for s, n in enumerate([10, 14, 12])]
+    assert instrument_table(stood).splitlines()[-1].endswith("| 12 | 2.0 |")   # medians over the runs
     bare = [RunRecord("seq", "depth-raw", 0, extra={"chi2_gate": {"gamma_per_dof_median": 0.2}})]
     assert "(`gate_depth_scale`)," in instrument_table(bare)           # not recorded: no value claimed
 
