@@ -496,8 +496,8 @@ def test_features_are_triangulated_again_from_their_current_observations_before_
 
 def test_zero_velocity_update_fires_while_the_robot_stands_and_only_then():
     """A robot that stands loses no track and its window does not prune until full: nothing but the IMU constrains
-    the state. The zero-velocity update (``update.zupt_max_flow``, off by default: it also fires on a robot creeping
-    at a few cm/s, README) fires on the images whose features did not move
+    the state. The zero-velocity update (``update.zupt_max_flow``; here at every still image, ``zupt_only_at_start``
+    off, which also fires on a robot creeping at a few cm/s, README) fires on the images whose features did not move
     — nearly every image of the stand — and on none once the robot drives; it pins the velocity (σ ≤ 1 cm/s after the
     stand) where, off, the velocity is left to the IMU."""
     from msckf.filter import FrameStats
