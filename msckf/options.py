@@ -433,6 +433,11 @@ class DepthOptions:
             0.174 (1.9 / 2.8 → 2.0 / 2.8), ``paper`` 0.197 → 0.184 (3.0 / 8.5 → 2.4 / 7.6); rosario-like-03 depth-raw
             0.143 → 0.152 (1.5 / 1.0 → 1.6 / 1.0), ``paper`` 0.147 → 0.173 (10.0 / 3.6 → 13.0 / 3.3): no gain on the
             real sources yet, so False (default) keeps ``σ_Z / Z²``.
+            Again with today's filter (stop 48, oracle, 120 s, seed 0, against the truth, off → on): depth-raw 0.0787 /
+            0.1282 / 0.1331 → 0.0812 / 0.1271 / 0.1215 m, ``paper`` 0.0877 / 0.1168 / 0.1307 → 0.0865 / 0.1014 / 0.1397,
+            perfect fills 0.0600 / 0.0471 / 0.1161 → 0.0573 / 0.0493 / 0.1027 (01 / 02 / 03), exact + 3 % NEES of
+            position 13.2 / 5.4 / 8.6 → 3.6 / 1.5 / 3.7; at 10 s on 01 exact + 10 % 0.0344 → 0.0102 m (NEES 32 → 2.9).
+            Mixed on the real sources with one seed: still False.
         depth_sigma_scale: k > 0 (dimensionless): the update and the triangulation weigh every depth reading at k ×
             its σ; the χ² gate (and the monocular motion check) keep the reading's own σ. The pixel rows are weighed
             at ``UpdateOptions.feature_noise`` (2.5 px), k_px ≈ 8 × the pixel error actually measured (0.3 px:
