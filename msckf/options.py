@@ -437,7 +437,10 @@ class DepthOptions:
             0.1282 / 0.1331 → 0.0812 / 0.1271 / 0.1215 m, ``paper`` 0.0877 / 0.1168 / 0.1307 → 0.0865 / 0.1014 / 0.1397,
             perfect fills 0.0600 / 0.0471 / 0.1161 → 0.0573 / 0.0493 / 0.1027 (01 / 02 / 03), exact + 3 % NEES of
             position 13.2 / 5.4 / 8.6 → 3.6 / 1.5 / 3.7; at 10 s on 01 exact + 10 % 0.0344 → 0.0102 m (NEES 32 → 2.9).
-            Mixed on the real sources with one seed: still False.
+            Mixed on the real sources with one seed.
+            With seeds 1–2 too (3-seed means, off → on): depth-raw 0.084 / 0.107 / 0.128 → 0.091 / 0.122 / 0.126,
+            ``paper`` 0.092 / 0.114 / 0.133 → 0.086 / 0.103 / 0.167, perfect fills 0.061 / 0.051 / 0.111 → 0.062 / 0.053
+            / 0.097: it costs depth-raw on 01 / 02 and ``paper`` on 03 (+25 %) — still False.
         depth_sigma_scale: k > 0 (dimensionless): the update and the triangulation weigh every depth reading at k ×
             its σ; the χ² gate (and the monocular motion check) keep the reading's own σ. The pixel rows are weighed
             at ``UpdateOptions.feature_noise`` (2.5 px), k_px ≈ 8 × the pixel error actually measured (0.3 px:
