@@ -1,7 +1,9 @@
 """The report's "depth given to the filter and χ² gate" table: per sequence × variant, medians over runs of what
 each run record states about the depth its features carried (measured vs filled, stated σ_Z/Z) and about the
-filter's χ² gate (γ/dof ≈ 1 when the measurement noise is calibrated; rejected fraction) and about its zero-velocity
-updates (how many images, the last one's time).
+filter's χ² gate (γ/dof, and the χ² noise scale c of :mod:`eval.gate_calibration`, which is 1 when the residual
+covariance the filter states is right whatever the features' degrees of freedom — the median γ/dof of a calibrated
+gate is 0.79 at dof 3; rejected fraction) and about its zero-velocity updates (how many images, the last one's
+time).
 
 Reads only the records' ``feature_depth``, ``chi2_gate`` and ``zero_velocity`` entries (written by the pipeline's
 run stage); runs without them are skipped, so the table is absent for old records. The caption names the depth
@@ -28,6 +30,7 @@ _COLUMNS = (("feature_depth", "filled_fraction", "filled share of feature depths
             ("feature_depth", "occlusion_edge_fill_fraction", "fill pixels at occlusion edges", "{:.0%}"),
             ("chi2_gate", "gamma_per_dof_median", "γ/dof median", "{:.3f}"),
             ("chi2_gate", "gamma_per_dof_mean", "γ/dof mean", "{:.2f}"),
+            ("chi2_gate", "chi2_noise_scale", "χ² noise scale c (1 = calibrated)", "{:.2f}"),
             ("chi2_gate", "rejected_fraction", "gate rejected", "{:.1%}"),
             ("zero_velocity", "frames", "zero-velocity updates (images)", "{:.0f}"),
             ("zero_velocity", "last_s", "last zero-velocity update (s)", "{:.1f}"))

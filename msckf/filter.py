@@ -90,15 +90,23 @@ class FrameStats:
         """Features that went through the χ² gate in this frame."""
         return int(sum(np.size(g) for g in self.gate_gamma))
 
-    def gamma_per_dof(self) -> np.ndarray:
-        """(M,) γ/dof of this frame's gated features with a finite γ and dof > 0 (≈ 1 when calibrated)."""
-        parts = []
+    def gate_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(γ, dof)``: (M,) χ² statistics and degrees of freedom of this frame's gated features with a finite γ
+        and dof > 0 (γ ~ χ²(dof) when the stated residual covariance is right)."""
+        gs, ds = [], []
         for g, dof in zip(self.gate_gamma, self.gate_dof):
-            g = np.asarray(g, dtype=np.float64)
+            g = np.asarray(g, dtype=np.float64).reshape(-1)
             dof = np.broadcast_to(np.asarray(dof, dtype=np.float64), g.shape)
             ok = (dof > 0) & np.isfinite(g)
-            parts.append(g[ok] / dof[ok])
-        return np.concatenate(parts) if parts else np.zeros(0)
+            gs.append(g[ok])
+            ds.append(dof[ok])
+        return (np.concatenate(gs), np.concatenate(ds)) if gs else (np.zeros(0), np.zeros(0))
+
+    def gamma_per_dof(self) -> np.ndarray:
+        """(M,) γ/dof of this frame's gated features with a finite γ and dof > 0 (its mean ≈ 1 when calibrated;
+        its median is the χ² median over dof, e.g. 0.79 at dof 3: ``eval.gate_calibration``)."""
+        g, dof = self.gate_pairs()
+        return g / dof if g.size else np.zeros(0)
 
 
 class MsckfFilter:

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from eval.evaluate import EvalOptions, evaluate
+from eval.gate_calibration import chi2_noise_scale
 from eval.trajectory import Trajectory, read_tum
 from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError
@@ -558,7 +559,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
     imu = log.imu
     k = 0
     n_depth = n_feat = n_gated = n_fallback = 0
-    g_ratio: list[np.ndarray] = []
+    g_pairs: list[tuple[np.ndarray, np.ndarray]] = []
     nees = NeesAccumulator(truth)
     failure = None
     try:
@@ -585,7 +586,7 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
             n_feat += len(has)
             n_gated += filt.last_stats.n_gated_out
             n_fallback += filt.last_stats.n_depth_fallback
-            g_ratio.append(filt.last_stats.gamma_per_dof())
+            g_pairs.append(filt.last_stats.gate_pairs())
             if pose is not None:
                 stamps.append(pose.stamp_s)
                 ps.append(pose.p_world)
@@ -595,12 +596,22 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
         failure = exc.reason
     traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
                       np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
-    gr = np.concatenate(g_ratio) if g_ratio else np.zeros(0)
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
-                           "depth_fallback": n_fallback,
-                           "gamma_per_dof_median": float(np.median(gr)) if len(gr) else float("nan"),
-                           "gamma_per_dof_mean": float(np.mean(gr)) if len(gr) else float("nan"),
-                           **nees.stats()}
+                           "depth_fallback": n_fallback, **gate_statistics(g_pairs), **nees.stats()}
+
+
+def gate_statistics(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+    """Median and mean γ/dof and the χ² noise scale (:func:`eval.gate_calibration.chi2_noise_scale`; 1 =
+    calibrated) of one run's gated features, from its frames' ``FrameStats.gate_pairs()``; NaN when none."""
+    pairs = list(pairs)
+    g = np.concatenate([p[0] for p in pairs]) if pairs else np.zeros(0)
+    d = np.concatenate([p[1] for p in pairs]) if pairs else np.zeros(0)
+    if g.size == 0:
+        return {"gamma_per_dof_median": float("nan"), "gamma_per_dof_mean": float("nan"),
+                "chi2_noise_scale": float("nan")}
+    r = g / d
+    return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
+            "chi2_noise_scale": chi2_noise_scale(g, d)}
 
 
 class NeesAccumulator:

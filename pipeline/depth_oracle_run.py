@@ -27,6 +27,7 @@ from pipeline.depth_oracle import (
     TrackLog,
     ate_against_truth,
     evaluate_rung,
+    gate_statistics,
     record_tracks,
     run_backend,
     snap_to_true_points,
@@ -173,6 +174,7 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
                           "depth_fallback": int(sum(s["depth_fallback"] for s in stats.values())),
                           "gamma_per_dof_median": float(np.nanmedian([s["gamma_per_dof_median"]
                                                                       for s in stats.values()])),
+                          "chi2_noise_scale": float(np.nanmedian([s["chi2_noise_scale"] for s in stats.values()])),
                           **_mean_nees([stats[s] for s in ate])}
     return out
 
@@ -251,14 +253,14 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
     ate: dict[int, float] = {}
     ate_truth: dict[int, float] = {}
     failed: dict[int, str] = {}
-    gamma_medians: list[float] = []
+    gate_stats: list[dict[str, float]] = []
     nees_stats: list[dict[str, float]] = []
     gated_out = 0
     for seed in seeds:
         vio = Msckf(config, seq.calibration, variant="stereo", seed=seed)
         nees = NeesAccumulator(prepared.get("imu_truth"))
         stamps, ps, qs = [], [], []
-        gammas: list[np.ndarray] = []
+        pairs: list[tuple[np.ndarray, np.ndarray]] = []
         k = 0
         try:
             for fr in seq.stereo_frames(stop_index=max_frames):
@@ -266,7 +268,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
                 k = feed_imu_until(vio, imu, k, t)  # keeps feeding until a still start, as a run does
                 pose = vio.add_frame(t, to_grey(fr.left_bgr), right_grey=to_grey(fr.right_bgr))
                 if vio.last_stats is not None:
-                    gammas.append(vio.last_stats.gamma_per_dof())
+                    pairs.append(vio.last_stats.gate_pairs())
                     gated_out += int(vio.last_stats.n_gated_out)
                 if pose is not None:
                     stamps.append(pose.stamp_s)
@@ -277,8 +279,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
             failed[seed] = exc.reason
             continue
         finally:
-            g = np.concatenate(gammas) if gammas else np.zeros(0)
-            gamma_medians.append(float(np.median(g)) if g.size else float("nan"))
+            gate_stats.append(gate_statistics(pairs))
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
         try:
@@ -290,5 +291,6 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
             ate_truth[seed] = truth_ate
         nees_stats.append(nees.stats())
     return {"ate": ate, "ate_truth": ate_truth, "failed": failed, "chain": "", "order": 0, "gated_out": gated_out,
-            "gamma_per_dof_median": float(np.nanmedian(gamma_medians)) if gamma_medians else float("nan"),
+            **{k: float(np.nanmedian([g[k] for g in gate_stats])) if gate_stats else float("nan")
+               for k in ("gamma_per_dof_median", "chi2_noise_scale")},
             **_mean_nees(nees_stats)}

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from eval.gate_calibration import chi2_exceed_fraction, chi2_noise_scale
 from pipeline.atomic import atomic_path
 
 # (name in frames.npz, dtype, trailing shape) of the per-feature columns, in the order they are saved
@@ -100,7 +101,8 @@ class FrameLog:
         self.n_features = GrowingArray(np.int64)
         self.n_depth = GrowingArray(np.int64)
         self.frame_ms = GrowingArray(np.float64)
-        self._gate_ratio = GrowingArray(np.float64)
+        self._gate_gamma = GrowingArray(np.float64)
+        self._gate_dof = GrowingArray(np.float64)
         self._rel = {"measured": GrowingArray(np.float64), "filled": GrowingArray(np.float64)}
         self._n_has_depth = 0
         self._n_filled = 0
@@ -144,9 +146,12 @@ class FrameLog:
         self.occlusion_edge_px += int(n_occlusion_edge_px)
 
     def add_gate(self, stats: Any) -> None:
-        """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ/dof of every gated feature, and
-        whether the frame got a zero-velocity update (``FrameStats.zupt``, stamp ``FrameStats.stamp_s``)."""
-        self._gate_ratio.extend(np.asarray(stats.gamma_per_dof(), dtype=np.float64).reshape(-1))
+        """Collect the χ² gate of one frame (``msckf.filter.FrameStats``): γ and dof of every gated feature
+        (``FrameStats.gate_pairs``), and whether the frame got a zero-velocity update (``FrameStats.zupt``, stamp
+        ``FrameStats.stamp_s``)."""
+        gamma, dof = stats.gate_pairs()
+        self._gate_gamma.extend(np.asarray(gamma, dtype=np.float64).reshape(-1))
+        self._gate_dof.extend(np.asarray(dof, dtype=np.float64).reshape(-1))
         self.gated += stats.n_gated
         self.gated_out += int(stats.n_gated_out)
         if getattr(stats, "zupt", False):
@@ -231,12 +236,16 @@ class FrameLog:
                             _copy_file(self._spill / f"{name}.bin", fid)
 
     def gate_summary(self) -> dict[str, float]:
-        """The χ² gate over the run: median and mean γ/dof (≈ 1 when the measurement noise is calibrated) and the
-        fraction of gated features that were rejected."""
-        r = self._gate_ratio.view()
-        if r.size == 0:
+        """The χ² gate over the run: median and mean γ/dof, the χ² noise scale c (1 when the residual covariance
+        the filter states is right, whatever the features' dof: :func:`eval.gate_calibration.chi2_noise_scale`),
+        the share of features above the χ²(dof) 95 % quantile (5 % when calibrated) and the fraction of gated
+        features that were rejected."""
+        g, d = self._gate_gamma.view(), self._gate_dof.view()
+        if g.size == 0:
             return {}
+        r = g / d
         return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
+                "chi2_noise_scale": chi2_noise_scale(g, d), "above_chi2_95": chi2_exceed_fraction(g, d),
                 "features_gated": self.gated, "rejected_fraction": float(self.gated_out / max(self.gated, 1))}
 
     def zupt_summary(self) -> dict[str, float]:

@@ -41,17 +41,19 @@ def _mean_ate(r: Mapping[str, Any], seeds: Sequence[int]) -> float:
 
 def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> list[str]:
     """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
-    carry a depth, the χ² gate's median γ/dof, the NEES of position / orientation where measured (3 = consistent;
+    carry a depth, the χ² gate's median γ/dof and χ² noise scale c (1 = calibrated, ``eval.gate_calibration``),
+    the NEES of position / orientation where measured (3 = consistent;
     the orientation's tilt / yaw split in brackets: 2 / 1), features gated out, depth fall-backs, failed runs."""
-    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | NEES p / θ (tilt / yaw) "
-             "| gated out | depth fallback | failed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | χ² scale c "
+             "| NEES p / θ (tilt / yaw) | gated out | depth fallback | failed |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]
         lines.append(f"| {name} | {np.nanmean(a) if np.isfinite(a).any() else float('nan'):.4f} | "
                      f"{' '.join(f'{x:.4f}' for x in a)} | "
                      f"{r.get('depth_fraction', float('nan')):.2f} | "
-                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | {_nees_cell(r)} | "
+                     f"{r.get('gamma_per_dof_median', float('nan')):.3f} | "
+                     f"{r.get('chi2_noise_scale', float('nan')):.2f} | {_nees_cell(r)} | "
                      f"{r.get('gated_out', '')} | "
                      f"{r.get('depth_fallback', '')} | "
                      f"{len(r['failed'])} |")
@@ -117,7 +119,7 @@ class LadderResult:
     """The ladder of several simulated sequences.
 
     ``results``: sequence → rung → ``{"ate": {seed: m}, "failed": {seed: reason}, "chain", "order",
-    "depth_fraction", "gated_out", "depth_fallback", "gamma_per_dof_median"[, "nees_position",
+    "depth_fraction", "gated_out", "depth_fallback", "gamma_per_dof_median", "chi2_noise_scale"[, "nees_position",
     "nees_orientation"]}``; ``extra``: sequence → truth
     coverage and the depth error of each map at tracked points.
     """

@@ -28,6 +28,10 @@ class _Stats:
     n_gated: int
     n_gated_out: int
 
+    def gate_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        dof = np.arange(len(self.ratio)) % 5 + 1.0                 # a mix of dof, as a real frame has
+        return self.ratio * dof, dof
+
     def gamma_per_dof(self) -> np.ndarray:
         return self.ratio
 
@@ -112,7 +116,7 @@ def _fill(frames, chunk: int, target: Path) -> tuple[FrameLog, _ReferenceLog]:
             log.add(stamp, dbg, el)
             log.add_gate(st)
             ref.add(stamp, dbg, el)
-            ref.gate.append(st.gamma_per_dof())
+            ref.gate.append(np.divide(*st.gate_pairs()))
     return log, ref
 
 
@@ -136,6 +140,7 @@ def test_round_trip_equals_the_in_memory_log_and_summaries(tmp_path, chunk):
     gate, depth = ref.summaries()
     got_gate = log.gate_summary()
     assert (got_gate["gamma_per_dof_median"], got_gate["gamma_per_dof_mean"]) == (gate["median"], gate["mean"])
+    assert 0.0 < got_gate["chi2_noise_scale"] < np.inf and 0.0 <= got_gate["above_chi2_95"] <= 1.0
     got_depth = log.depth_summary()
     assert {k: got_depth[k] for k in depth} == depth and depth["sigma_rel_median_filled"] > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frames.npz"]  # spill folder gone

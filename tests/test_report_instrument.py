@@ -15,7 +15,7 @@ def _rec(variant: str, seed: int, filled: float, gamma: float, status: str = "ok
                                                   "far_open_fill_fraction": 0.25,
                                                   "occlusion_edge_fill_fraction": 0.125} if filled else {})},
                             "chi2_gate": {"gamma_per_dof_median": gamma, "gamma_per_dof_mean": 10 * gamma,
-                                          "rejected_fraction": 0.01},
+                                          "chi2_noise_scale": 20 * gamma, "rejected_fraction": 0.01},
                             "input_key_parts": {"msckf": {"gate_depth_scale": 0.1 if seed == 1 else 0.03}}})
 
 
@@ -27,6 +27,7 @@ def test_instrument_table_gives_medians_per_variant_and_skips_failed_runs():
     lines = {ln.split(" | ")[1]: ln for ln in md.splitlines() if ln.startswith("| seq |")}
     assert set(lines) == {"depth-raw", "depth-inpainted[telea]"}
     assert "| 3 | 0% | 2.0% | – | – | – | 0.012 |" in lines["depth-raw"]                 # median γ/dof of 3 runs
+    assert "| 0.012 | 0.12 | 0.24 | 1.0% |" in lines["depth-raw"]       # then the mean, the χ² noise scale
     assert "| 3 | 40% | 2.0% | 15.0% | 25% | 12% | 0.015 |" in lines["depth-inpainted[telea]"]  # the failed run is out
     assert instrument_table([RunRecord("seq", "stereo", 0)]) is None
     assert "(`gate_depth_scale` 3%, 10% in these runs)" in md          # what the runs used, not today's default
