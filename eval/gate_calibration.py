@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import chi2
 
-__all__ = ["chi2_noise_scale", "chi2_exceed_fraction"]
+__all__ = ["chi2_noise_scale", "chi2_exceed_fraction", "gate_statistics"]
 
 
 def _valid(gamma: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -62,3 +62,19 @@ def chi2_exceed_fraction(gamma: np.ndarray, dof: np.ndarray, quantile: float = 0
     if g.size == 0:
         return float("nan")
     return float(np.mean(g > chi2.ppf(quantile, d)))
+
+
+def gate_statistics(gamma: np.ndarray, dof: np.ndarray) -> dict[str, float]:
+    """One run's gate in four numbers: median and mean γ/dof, the χ² noise scale (:func:`chi2_noise_scale`) and
+    the share above the χ²(dof) 95 % quantile (:func:`chi2_exceed_fraction`); NaN each when no feature is valid.
+
+    Args:
+        gamma: (M,) gate statistics. dof: (M,) or scalar degrees of freedom.
+    """
+    g, d = _valid(gamma, dof)
+    if g.size == 0:
+        return {"gamma_per_dof_median": float("nan"), "gamma_per_dof_mean": float("nan"),
+                "chi2_noise_scale": float("nan"), "above_chi2_95": float("nan")}
+    r = g / d
+    return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
+            "chi2_noise_scale": chi2_noise_scale(g, d), "above_chi2_95": chi2_exceed_fraction(g, d)}

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from eval.evaluate import EvalOptions, evaluate
-from eval.gate_calibration import chi2_noise_scale
+from eval.gate_calibration import gate_statistics as gate_summary
 from eval.trajectory import Trajectory, read_tum
 from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError
@@ -601,17 +601,12 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
 
 
 def gate_statistics(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
-    """Median and mean γ/dof and the χ² noise scale (:func:`eval.gate_calibration.chi2_noise_scale`; 1 =
-    calibrated) of one run's gated features, from its frames' ``FrameStats.gate_pairs()``; NaN when none."""
+    """:func:`eval.gate_calibration.gate_statistics` of one run's gated features, from its frames'
+    ``FrameStats.gate_pairs()`` (median and mean γ/dof, χ² noise scale, share above the 95 % quantile)."""
     pairs = list(pairs)
     g = np.concatenate([p[0] for p in pairs]) if pairs else np.zeros(0)
     d = np.concatenate([p[1] for p in pairs]) if pairs else np.zeros(0)
-    if g.size == 0:
-        return {"gamma_per_dof_median": float("nan"), "gamma_per_dof_mean": float("nan"),
-                "chi2_noise_scale": float("nan")}
-    r = g / d
-    return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
-            "chi2_noise_scale": chi2_noise_scale(g, d)}
+    return gate_summary(g, d)
 
 
 class NeesAccumulator:

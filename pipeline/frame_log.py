@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from eval.gate_calibration import chi2_exceed_fraction, chi2_noise_scale
+from eval.gate_calibration import gate_statistics
 from pipeline.atomic import atomic_path
 
 # (name in frames.npz, dtype, trailing shape) of the per-feature columns, in the order they are saved
@@ -243,10 +243,8 @@ class FrameLog:
         g, d = self._gate_gamma.view(), self._gate_dof.view()
         if g.size == 0:
             return {}
-        r = g / d
-        return {"gamma_per_dof_median": float(np.median(r)), "gamma_per_dof_mean": float(np.mean(r)),
-                "chi2_noise_scale": chi2_noise_scale(g, d), "above_chi2_95": chi2_exceed_fraction(g, d),
-                "features_gated": self.gated, "rejected_fraction": float(self.gated_out / max(self.gated, 1))}
+        return {**gate_statistics(g, d), "features_gated": self.gated,
+                "rejected_fraction": float(self.gated_out / max(self.gated, 1))}
 
     def zupt_summary(self) -> dict[str, float]:
         """The zero-velocity updates of the run (``msckf`` ``update.zupt_max_flow``): how many images got one and

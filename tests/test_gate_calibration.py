@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from eval.gate_calibration import chi2_exceed_fraction, chi2_noise_scale
+from eval.gate_calibration import chi2_exceed_fraction, chi2_noise_scale, gate_statistics
 
 
 def _draws(scale: float, dofs: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -35,3 +35,15 @@ def test_invalid_entries_are_ignored_and_empty_input_is_nan() -> None:
     assert chi2_noise_scale(np.zeros(4), np.full(4, 2.0)) == 0.0
     with pytest.raises(ValueError):
         chi2_exceed_fraction(g, dofs, quantile=1.0)
+
+
+def test_gate_statistics_summarises_a_run_and_is_nan_without_features() -> None:
+    dofs = np.repeat([3, 12], 5000)
+    g = _draws(0.5, dofs, seed=2)
+    st = gate_statistics(g, dofs)
+    assert st["gamma_per_dof_median"] == pytest.approx(float(np.median(g / dofs)))
+    assert st["gamma_per_dof_mean"] == pytest.approx(0.5, rel=0.05)
+    assert st["chi2_noise_scale"] == pytest.approx(0.5, rel=0.06)
+    assert st["above_chi2_95"] < 0.01                                   # half the stated variance: few exceed
+    empty = gate_statistics(np.zeros(0), np.zeros(0))
+    assert set(empty) == set(st) and all(np.isnan(v) for v in empty.values())
