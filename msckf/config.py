@@ -72,6 +72,7 @@ FLAT_KEYS: dict[str, str] = {
     "zupt_max_flow": "update",
     "zupt_velocity_sigma": "update",
     "zupt_only_at_start": "update",
+    "extrinsics_after_motion": "update",
     "depth_fallback": "update",
     "depth_fallback_measured": "update",
     "gate_depth_scale": "update",

@@ -23,7 +23,7 @@ from msckf.errors import FilterDivergedError, MsckfInputError
 from msckf.init import StaticInit, static_initialize
 from msckf.propagation import propagate_samples
 from msckf.rotation import matrix_to_quat_xyzw, orthonormalize, skew, so3_log
-from msckf.state import BA, BG, IMU_DIM, TH, VEL, CloneStore, FeatureStore, ImuState, initial_covariance
+from msckf.state import BA, BG, EXT_P, EXT_R, IMU_DIM, TH, VEL, CloneStore, FeatureStore, ImuState, initial_covariance
 from msckf.triangulation import initial_guess, triangulate_batch, views_from_clones
 from msckf.types import DepthSource, FeatureObservations, PoseEstimate
 from msckf.update import (
@@ -149,6 +149,8 @@ class MsckfFilter:
         self.last_stats = FrameStats()
         #: the robot was seen moving (``update.zupt_only_at_start``: no zero-velocity update from then on)
         self.has_moved = False
+        #: the extrinsics' prior covariance blocks while they are held (``update.extrinsics_after_motion``), else None
+        self._extrinsic_prior: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------------------------------ input
     @property
@@ -187,6 +189,13 @@ class MsckfFilter:
             if P.shape != (IMU_DIM, IMU_DIM):
                 raise MsckfInputError(f"initialize: covariance must be 21x21, got {P.shape}")
             self.P = 0.5 * (P + P.T)
+        if self.config.update.extrinsics_after_motion and not self.has_moved and self.config.update.zupt_max_flow > 0:
+            # hold the camera–IMU extrinsics while the robot stands (unobservable there); restored at first motion
+            self._extrinsic_prior = (self.P[EXT_R, EXT_R].copy(), self.P[EXT_P, EXT_P].copy())
+            for blk in (EXT_R, EXT_P):
+                self.P[blk, :] = 0.0
+                self.P[:, blk] = 0.0
+                self.P[blk, blk] = 1e-14 * np.eye(3)
         self.clones.clear()
         self.features.clear()
         self._drop_imu_before(float(t_s))
@@ -749,6 +758,13 @@ class MsckfFilter:
         flow = np.linalg.norm(fs.obs[both, cur_slot, :2] - fs.obs[both, prev, :2], axis=1)
         if np.median(flow) > c.zupt_max_flow:
             self.has_moved = True
+            if self._extrinsic_prior is not None:
+                # the extrinsics become observable: their prior uncertainty back, uncorrelated (nothing was learnt)
+                for blk, prior in zip((EXT_R, EXT_P), self._extrinsic_prior):
+                    self.P[blk, :] = 0.0
+                    self.P[:, blk] = 0.0
+                    self.P[blk, blk] = prior
+                self._extrinsic_prior = None
             return
         state = self._initialised()
         v = state.v

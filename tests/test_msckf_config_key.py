@@ -23,7 +23,8 @@ a6d0fc094c81d1cb, and the static initialisation's measured covariance (``static_
 f61e193028f9361d, and ``retriangulate`` (stop 47, on) from 62c258e6667236ff / bbafdd7217e3e782, and the
 zero-velocity update (``zupt_max_flow``, ``zupt_velocity_sigma``; stop 47, first on, then off by default) from
 e03acdc461132ca8 / c07badf395c7e08f (on: 3781e088578e56db / 00fb73258abeb0cc), and ``zupt_only_at_start`` with the
-zero-velocity update on (stop 48) from 8862fa15199afecc / afd7e85b17b66a49.
+zero-velocity update on (stop 48) from 8862fa15199afecc / afd7e85b17b66a49, and ``extrinsics_after_motion`` (stop
+49, off) from 29378ac9b91ae437 / af54a6b71128b0b1.
 """
 
 from __future__ import annotations
@@ -33,9 +34,9 @@ from pipeline.run_key import input_key, job_key_parts, sequence_key_parts
 from pipeline.validate import check_msckf_config
 
 #: config_hash of the default MSCKF config as it enters the run key (pipeline.validate.check_msckf_config(None)).
-DEFAULT_MSCKF_HASH = "29378ac9b91ae437"
+DEFAULT_MSCKF_HASH = "346405744df0c581"
 #: input_key of a stereo job built from fixed, made-up sequence parts and the default MSCKF config.
-DEFAULT_JOB_KEY = "af54a6b71128b0b1"
+DEFAULT_JOB_KEY = "d45f922be53d07ba"
 
 
 def _job_key(msckf: dict) -> str:

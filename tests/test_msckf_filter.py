@@ -580,3 +580,33 @@ def test_zero_velocity_update_only_at_start_ends_once_the_robot_moved():
     moving = w.frame_t > traj.go[0] + 0.5                      # the ramp's first 0.5 s (< 5 cm/s) may look still
     assert not fired[True][moving].any()
     assert np.mean(fired[False][second_stand]) >= 0.85
+
+
+def test_extrinsics_after_motion_holds_the_extrinsics_while_the_robot_stands():
+    """``update.extrinsics_after_motion``: while the robot stands at the start (unobservable there) the camera–IMU
+    extrinsics keep their value and a zero covariance; at the first image that shows motion their prior covariance
+    comes back, uncorrelated; off, they carry their prior and are updated during the stand."""
+    traj = _StopAndGo()
+    w = make_world(seed=4, duration=3.5, max_features=150, trajectory=traj, depth_mode=True, depth_rel_sigma=0.01,
+                   pixel_sigma=0.1)
+    prior = 3.0462e-4
+    for on in (True, False):
+        flt = MsckfFilter(matched_config(zupt_max_flow=0.001, velocity_cov=0.25, extrinsics_after_motion=on,
+                                         extrinsic_rotation_cov=prior), w.T_cam0_imu, w.T_cam1_cam0)
+        flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+        R0 = flt.state.R_c_i.copy()
+        var_stand, var_release, moved_at = [], None, None
+        for m, _ in iterate(w, flt):
+            v = np.diag(flt.P[15:18, 15:18]).max()
+            if not flt.has_moved:
+                var_stand.append(v)
+                drift = np.linalg.norm(so3_log(flt.state.R_c_i @ R0.T))
+            elif moved_at is None:
+                moved_at, var_release = w.frame_t[m], np.diag(flt.P[15:18, 15:18])
+        assert moved_at is not None and moved_at < traj.go[0] + 1.0
+        if on:
+            assert max(var_stand) < 1e-12 and drift < 1e-9
+            assert np.all(var_release > 0.5 * prior)                # restored (one image's updates may shrink it)
+            assert np.abs(flt.P[15:18, :15]).max() > 0.0            # and correlated again by the later updates
+        else:
+            assert min(var_stand) > 0.1 * prior
