@@ -759,12 +759,7 @@ class MsckfFilter:
         if np.median(flow) > c.zupt_max_flow:
             self.has_moved = True
             if self._extrinsic_prior is not None:
-                # the extrinsics become observable: their prior uncertainty back, uncorrelated (nothing was learnt)
-                for blk, prior in zip((EXT_R, EXT_P), self._extrinsic_prior):
-                    self.P[blk, :] = 0.0
-                    self.P[:, blk] = 0.0
-                    self.P[blk, blk] = prior
-                self._extrinsic_prior = None
+                self._release_extrinsics()
             return
         state = self._initialised()
         v = state.v
@@ -777,6 +772,31 @@ class MsckfFilter:
         self.P = 0.5 * (P + P.T)
         inject_correction(state, self.clones, K @ (-v))
         st.zupt = True
+
+    def _release_extrinsics(self) -> None:
+        """The extrinsics become observable (``update.extrinsics_after_motion``): their error e, still unknown with
+        its prior covariance Σ (nothing was learnt while they were held), enters the extrinsic block and every clone
+        in the window through the clone's Jacobian (:func:`msckf.augmentation.augmentation_jacobian`: δθ_c += e_R,
+        δp_c += R_w_i e_p), i.e. P ← P + A Σ Aᵀ with the held blocks cleared first."""
+        state = self._initialised()
+        if self._extrinsic_prior is None:
+            return
+        sig_r, sig_p = self._extrinsic_prior
+        for blk in (EXT_R, EXT_P):
+            self.P[blk, :] = 0.0
+            self.P[:, blk] = 0.0
+        A = np.zeros((self.P.shape[0], 6))
+        A[EXT_R, 0:3] = np.eye(3)
+        A[EXT_P, 3:6] = np.eye(3)
+        for k, slot in enumerate(self.clones.order):
+            r0 = IMU_DIM + 6 * k
+            A[r0:r0 + 3, 0:3] = np.eye(3)
+            A[r0 + 3:r0 + 6, 3:6] = self.clones.R_w_c[slot] @ state.R_c_i      # R_w_i of that clone
+        Sigma = np.zeros((6, 6))
+        Sigma[0:3, 0:3], Sigma[3:6, 3:6] = sig_r, sig_p
+        P = self.P + A @ Sigma @ A.T
+        self.P = 0.5 * (P + P.T)
+        self._extrinsic_prior = None
 
     def _positions_for_update(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
         """The features (rows) that enter an update, each with a position triangulated from its current
