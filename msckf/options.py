@@ -292,20 +292,19 @@ class UpdateOptions:
             from a standing one either way.
         extrinsics_after_motion: hold the camera–IMU extrinsics (value and a zero covariance) while the robot stands at
             the start, where they are unobservable, and give them back their prior covariance, uncorrelated, at the
-            first image that shows motion (``has_moved``; needs ``zupt_max_flow`` > 0) [False]. Why (stop 49): during
-            the stand the IMU orientation drifts against the still camera by the static window's gyro-bias error (σ 2.4
-            mrad/s on the simulator); with the simulator's own IMU noise (small gyro noise) the 1° extrinsic prior is
-            the cheapest explanation and the estimate moves 0.8° in 5 s. Oracle, 120 s, seed 0, with the simulator's IMU
-            noise, rosario-like-01 / 02 / 03, ATE RMSE m, off → on: depth-raw 0.160 / 0.128 / 0.193 → 0.102 / 0.095 /
-            0.161, exact depth 0.101 / 0.084 / 0.126 → 0.052 / 0.034 / 0.100, ``paper`` 0.142 / 0.130 / 0.228 → 0.066 /
-            0.114 / 0.188, stereo 0.104 / 0.051 / 0.120 → 0.096 / 0.031 / 0.085 — the figures of extrinsics held fixed
-            throughout. With the default IMU noise: depth-raw 0.079 / 0.128 / 0.133 → 0.068 / 0.128 / 0.119, exact depth
-            0.052 / 0.038 / 0.068 → 0.042 / 0.022 / 0.043, ``paper`` 0.088 / 0.117 / 0.131 → 0.064 / 0.115 / 0.104,
-            stereo 0.099 / 0.065 / 0.116 → 0.098 / 0.037 / 0.107. Not a default: at the release the clones in the window
-            get no correlation with the extrinsics (their camera poses were composed with the held value), and on the
-            synthetic feature world, which starts with an extrinsic error drawn from the prior, that leaves the filter
-            overconfident (position ANEES 26 instead of ≈ 3, tests/test_msckf_filter.py with the option on); the release
-            must add each clone's Jacobian with respect to the extrinsics first.
+            first image that shows motion (``has_moved``; needs ``zupt_max_flow`` > 0) [False]. Why it was tried (stop
+            49): with the simulator's IMU noise the extrinsic estimate moves 0.8° in the first 5 s (the robot starts at
+            2.95 s) and the depth rungs lose 1.5–2× at 120 s; extrinsics held fixed throughout remove that loss. First
+            version (57261d0, the release left the window's clones uncorrelated with the extrinsics): oracle, 120 s,
+            seed 0, rosario-like-01 / 02 / 03, ATE RMSE m, with the simulator's IMU noise the whole true-IMU loss went
+            (the fixed-extrinsic figures), with the default IMU noise every rung gained (depth-raw 0.079 / 0.128 / 0.133
+            → 0.068 / 0.128 / 0.119, ``paper`` 0.088 / 0.117 / 0.131 → 0.064 / 0.115 / 0.104) — but that release made
+            the synthetic feature world overconfident (position ANEES 26). Now (01d8208) the release adds the
+            extrinsics' prior to every clone through its augmentation Jacobian (P += A Σ Aᵀ): the synthetic NEES tests
+            pass with it on, and with the default IMU noise the figures equal the default's (0.078 / 0.128 / 0.133,
+            ``paper`` 0.088 / 0.117 / 0.131: the extrinsic hardly moves in the stand there; the first version's gains
+            came from its inconsistent release), and with the simulator's IMU noise too (0.160 / 0.128 / 0.194): the
+            loss is not made in the stand.
         retriangulate: triangulate every feature that enters an update again from its current observations
             [True]; False: S-MSCKF, which triangulates a feature once and reuses that position in every later
             update (pruning uses a feature several times). A cached position is stale once the observations it
