@@ -21,9 +21,7 @@ __all__ = ["chi2_noise_scale", "chi2_exceed_fraction", "gate_statistics"]
 
 def _valid(gamma: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     g = np.asarray(gamma, dtype=np.float64).reshape(-1)
-    d = np.broadcast_to(np.asarray(dof, dtype=np.float64), g.shape).reshape(-1)
-    if g.shape != d.shape:
-        raise ValueError(f"gamma {g.shape} and dof {d.shape} differ in size")
+    d = np.broadcast_to(np.asarray(dof, dtype=np.float64), g.shape).reshape(-1)   # raises if they cannot match
     ok = np.isfinite(g) & (g >= 0) & np.isfinite(d) & (d > 0)
     return g[ok], d[ok]
 

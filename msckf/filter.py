@@ -12,11 +12,11 @@ Deterministic: no randomness in the back end; same inputs give bit-identical out
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from msckf.augmentation import augment
+from msckf.augmentation import augment, augmentation_jacobian
 from msckf.camera import check_transform
 from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError, MsckfInputError
@@ -102,12 +102,6 @@ class FrameStats:
             ds.append(dof[ok])
         return (np.concatenate(gs), np.concatenate(ds)) if gs else (np.zeros(0), np.zeros(0))
 
-    def gamma_per_dof(self) -> np.ndarray:
-        """(M,) γ/dof of this frame's gated features with a finite γ and dof > 0 (its mean ≈ 1 when calibrated;
-        its median is the χ² median over dof, e.g. 0.79 at dof 3: ``eval.gate_calibration``)."""
-        g, dof = self.gate_pairs()
-        return g / dof if g.size else np.zeros(0)
-
 
 class MsckfFilter:
     """S-MSCKF back end.
@@ -192,9 +186,8 @@ class MsckfFilter:
         if self.config.update.extrinsics_after_motion and not self.has_moved and self.config.update.zupt_max_flow > 0:
             # hold the camera–IMU extrinsics while the robot stands (unobservable there); restored at first motion
             self._extrinsic_prior = (self.P[EXT_R, EXT_R].copy(), self.P[EXT_P, EXT_P].copy())
+            self._clear_extrinsic_blocks()
             for blk in (EXT_R, EXT_P):
-                self.P[blk, :] = 0.0
-                self.P[:, blk] = 0.0
                 self.P[blk, blk] = 1e-14 * np.eye(3)
         self.clones.clear()
         self.features.clear()
@@ -758,8 +751,7 @@ class MsckfFilter:
         flow = np.linalg.norm(fs.obs[both, cur_slot, :2] - fs.obs[both, prev, :2], axis=1)
         if np.median(flow) > c.zupt_max_flow:
             self.has_moved = True
-            if self._extrinsic_prior is not None:
-                self._release_extrinsics()
+            self._release_extrinsics()
             return
         state = self._initialised()
         v = state.v
@@ -774,29 +766,33 @@ class MsckfFilter:
         st.zupt = True
 
     def _release_extrinsics(self) -> None:
-        """The extrinsics become observable (``update.extrinsics_after_motion``): their error e, still unknown with
-        its prior covariance Σ (nothing was learnt while they were held), enters the extrinsic block and every clone
-        in the window through the clone's Jacobian (:func:`msckf.augmentation.augmentation_jacobian`: δθ_c += e_R,
-        δp_c += R_w_i e_p), i.e. P ← P + A Σ Aᵀ with the held blocks cleared first."""
-        state = self._initialised()
+        """The extrinsics become observable (``update.extrinsics_after_motion``; a no-op when none are held): their
+        error e, still unknown with its prior covariance Σ (nothing was learnt while they were held), enters the
+        extrinsic block and every clone in the window through the clone's augmentation Jacobian
+        (:func:`msckf.augmentation.augmentation_jacobian`, its extrinsic columns), i.e. P ← P + A Σ Aᵀ with the held
+        blocks cleared first."""
         if self._extrinsic_prior is None:
             return
+        state = self._initialised()
         sig_r, sig_p = self._extrinsic_prior
-        for blk in (EXT_R, EXT_P):
-            self.P[blk, :] = 0.0
-            self.P[:, blk] = 0.0
+        self._clear_extrinsic_blocks()
+        ext = slice(EXT_R.start, EXT_P.stop)
         A = np.zeros((self.P.shape[0], 6))
-        A[EXT_R, 0:3] = np.eye(3)
-        A[EXT_P, 3:6] = np.eye(3)
+        A[ext] = np.eye(6)
         for k, slot in enumerate(self.clones.order):
-            r0 = IMU_DIM + 6 * k
-            A[r0:r0 + 3, 0:3] = np.eye(3)
-            A[r0 + 3:r0 + 6, 3:6] = self.clones.R_w_c[slot] @ state.R_c_i      # R_w_i of that clone
+            R_w_i = self.clones.R_w_c[slot] @ state.R_c_i                      # the IMU orientation of that clone
+            A[IMU_DIM + 6 * k:IMU_DIM + 6 * k + 6] = augmentation_jacobian(replace(state, R_w_i=R_w_i))[:, ext]
         Sigma = np.zeros((6, 6))
         Sigma[0:3, 0:3], Sigma[3:6, 3:6] = sig_r, sig_p
         P = self.P + A @ Sigma @ A.T
         self.P = 0.5 * (P + P.T)
         self._extrinsic_prior = None
+
+    def _clear_extrinsic_blocks(self) -> None:
+        """Zero the covariance rows and columns of the camera–IMU extrinsics (``EXT_R``, ``EXT_P``)."""
+        for blk in (EXT_R, EXT_P):
+            self.P[blk, :] = 0.0
+            self.P[:, blk] = 0.0
 
     def _positions_for_update(self, rows: np.ndarray, st: FrameStats) -> np.ndarray:
         """The features (rows) that enter an update, each with a position triangulated from its current

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from eval.evaluate import EvalOptions, evaluate
-from eval.gate_calibration import gate_statistics as gate_summary
+from eval.gate_calibration import gate_statistics
 from eval.trajectory import Trajectory, read_tum
 from msckf.config import MsckfConfig
 from msckf.errors import FilterDivergedError
@@ -597,16 +597,16 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
     traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
                       np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
-                           "depth_fallback": n_fallback, **gate_statistics(g_pairs), **nees.stats()}
+                           "depth_fallback": n_fallback, **frames_gate_statistics(g_pairs), **nees.stats()}
 
 
-def gate_statistics(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+def frames_gate_statistics(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
     """:func:`eval.gate_calibration.gate_statistics` of one run's gated features, from its frames'
     ``FrameStats.gate_pairs()`` (median and mean γ/dof, χ² noise scale, share above the 95 % quantile)."""
     pairs = list(pairs)
     g = np.concatenate([p[0] for p in pairs]) if pairs else np.zeros(0)
     d = np.concatenate([p[1] for p in pairs]) if pairs else np.zeros(0)
-    return gate_summary(g, d)
+    return gate_statistics(g, d)
 
 
 class NeesAccumulator:

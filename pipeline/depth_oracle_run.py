@@ -27,7 +27,7 @@ from pipeline.depth_oracle import (
     TrackLog,
     ate_against_truth,
     evaluate_rung,
-    gate_statistics,
+    frames_gate_statistics,
     record_tracks,
     run_backend,
     snap_to_true_points,
@@ -279,7 +279,7 @@ def stereo_reference(sim_dir: Path, config: MsckfConfig, seeds: Iterable[int], p
             failed[seed] = exc.reason
             continue
         finally:
-            gate_stats.append(gate_statistics(pairs))
+            gate_stats.append(frames_gate_statistics(pairs))
         traj = Trajectory(np.asarray(stamps), np.asarray(ps).reshape(-1, 3), np.asarray(qs).reshape(-1, 4),
                           has_orientation=True)
         try:

@@ -32,9 +32,6 @@ class _Stats:
         dof = np.arange(len(self.ratio)) % 5 + 1.0                 # a mix of dof, as a real frame has
         return self.ratio * dof, dof
 
-    def gamma_per_dof(self) -> np.ndarray:
-        return self.ratio
-
 
 def _frames(n: int, seed: int = 0) -> list[tuple[float, _Debug | None, float, _Stats]]:
     """Synthetic frames: varying feature counts (some 0), holes, NaN and zero depths, frames without debug."""
