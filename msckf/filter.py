@@ -61,6 +61,9 @@ class FrameStats:
     ``over_budget``: the back end took longer than one image period (1 / ``config.health.frame_rate``), as
     msckf_vio warns. ``gate_gamma`` / ``gate_dof``: the χ² statistic γ and its degrees of freedom of every feature
     that was gated in this frame (one array per gated batch), for checking the noise calibration (γ/dof ≈ 1).
+    ``gate_ids`` / ``gate_verdict``: aligned with ``gate_gamma``, the feature (track) ids and what the gate did with
+    each: 0 rejected, 1 accepted with all of its observations, 2 accepted without its filled depths
+    (``depth_fallback``).
     ``n_depth_fallback``: features rejected with their depth-map observations and accepted without them
     (``update.depth_fallback``); they are not counted in ``n_gated_out``. ``zupt``: a zero-velocity update was made
     (``update.zupt_max_flow``).
@@ -84,6 +87,8 @@ class FrameStats:
     timings: dict[str, float] = field(default_factory=dict)
     gate_gamma: list[np.ndarray] = field(default_factory=list)
     gate_dof: list[np.ndarray] = field(default_factory=list)
+    gate_ids: list[np.ndarray] = field(default_factory=list)
+    gate_verdict: list[np.ndarray] = field(default_factory=list)
 
     @property
     def n_gated(self) -> int:
@@ -588,9 +593,13 @@ class MsckfFilter:
             ok = (gamma < chi2_threshold(c.chi2_quantile, dof)) & (b.n_rows > 3)
             st.gate_gamma.append(gamma)
             st.gate_dof.append(np.asarray(b.n_rows - 3))
-            n_back = self._regate_without_depth(rows[grp], clone_mask[grp], obs_dof[grp], ok, spec, accepted,
-                                                acc_rows_count, st) if c.depth_fallback else 0
-            st.n_gated_out += int(np.count_nonzero(~ok)) - n_back
+            back = self._regate_without_depth(rows[grp], clone_mask[grp], obs_dof[grp], ok, spec, accepted,
+                                              acc_rows_count, st) if c.depth_fallback else np.zeros(0, np.int64)
+            verdict = ok.astype(np.int8)
+            verdict[back] = 2
+            st.gate_ids.append(self.features.ids[rows[grp]].copy())
+            st.gate_verdict.append(verdict)
+            st.n_gated_out += int(np.count_nonzero(~ok)) - len(back)
             if np.any(ok):
                 kept = b.subset(ok)
                 if c.robust_k > 0:
@@ -660,11 +669,12 @@ class MsckfFilter:
 
     def _regate_without_depth(self, rows: np.ndarray, clone_mask: np.ndarray, obs_dof: np.ndarray, ok: np.ndarray,
                               spec: MeasurementSpec, accepted: list[FeatureBatch], acc_rows_count: list[np.ndarray],
-                              st: FrameStats) -> int:
+                              st: FrameStats) -> np.ndarray:
         """Gate the rejected features that have filled depths again without them (``depth_fallback``).
 
         ``ok``: (k,) the first gate's verdict. Those that pass now are appended to ``accepted`` /
-        ``acc_rows_count`` (depth-free blocks) and counted in ``st.n_depth_fallback``; returns how many.
+        ``acc_rows_count`` (depth-free blocks) and counted in ``st.n_depth_fallback``; returns their indices into
+        ``rows`` (int64).
         """
         c = self.config.update
         order = self._order()
@@ -673,11 +683,11 @@ class MsckfFilter:
         has_fill = np.any(self._fallback_drop(rows[:, None], sl) & valid, axis=1)
         retry = np.flatnonzero(~ok & has_fill)
         if len(retry) == 0:
-            return 0
+            return retry
         # the position was triangulated with the rejected depth: triangulate it again from the pixels alone
         retry = retry[self._triangulate(rows[retry], FrameStats(), without_depth=True)]
         if len(retry) == 0:
-            return 0
+            return retry
         b, b_gate = self._batches(rows[retry], clone_mask[retry], spec, without_depth=True)
         gamma = gating_chi2(self.P, b_gate, c.feature_noise, c.gate_noise or None)
         dof = b.n_rows - 3 if c.chi2_dof == "residual" else obs_dof[retry]
@@ -688,9 +698,8 @@ class MsckfFilter:
                 kept = downweight_features(kept, gamma[ok2] / np.maximum(kept.n_rows - 3, 1), c.robust_k)
             accepted.append(kept)
             acc_rows_count.append(b.n_rows[ok2] - 3)
-        n_back = int(np.count_nonzero(ok2))
-        st.n_depth_fallback += n_back
-        return n_back
+        st.n_depth_fallback += int(np.count_nonzero(ok2))
+        return retry[ok2]
 
     @staticmethod
     def _pad_batch(b: FeatureBatch, n: int, dummy: int) -> FeatureBatch:

@@ -40,6 +40,8 @@ from msckf.frontend import DepthFrontend
 from msckf.frontend_depth import depth_to_stereo, nearest_pixel_values, sample_depth
 from msckf.init import NonStaticStartError
 from msckf.types import DepthSource, FeatureObservations
+from msckf.update import inverse_depth_sigma
+from pipeline.gate_power import GatePower
 from pipeline.oracle_truth import AnchoredTruth, TrueImuPoses, tilt_yaw_nees
 
 __all__ = ["TrackedFrame", "TrackLog", "record_tracks", "true_track_depths", "snap_to_true_points", "Rung",
@@ -561,6 +563,9 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
     n_depth = n_feat = n_gated = n_fallback = 0
     g_pairs: list[tuple[np.ndarray, np.ndarray]] = []
     nees = NeesAccumulator(truth)
+    power = GatePower(fills_only_unmeasured=config.depth.depth_fills_only_unmeasured,
+                      fallback_measured=config.update.depth_fallback_measured)
+    fB = float(rig.fx * rig.baseline)
     failure = None
     try:
         for i, fr in enumerate(log.frames):
@@ -581,7 +586,19 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
                     sig0 = np.where(has, np.asarray(sig_rect, dtype=np.float64) * z0 / z_rect, np.nan)
             measured = None if rung.measured is None else has & np.asarray(rung.measured(log, i), dtype=bool)
             obs = _observations(fr, xy1, z0, src, sig0, measured)
+            if log.truth:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    dd = fB * np.abs(1.0 / z_rect - 1.0 / np.asarray(log.truth[i], dtype=np.float64))
+                # the σ the gate tests the reading's inverse-depth row with, in disparity px
+                sd = fB * inverse_depth_sigma(z0, sig0, config.depth.depth_inv_sigma, config.depth.depth_rel_sigma)
+                power.add_readings(fr.stamp_s, fr.ids[has], dd[has], sd[has],
+                                   np.zeros(int(has.sum()), bool) if measured is None else ~measured[has])
+            window_start = _oldest_clone_time(filt, fr.stamp_s)
             pose = filt.feed_features(obs)
+            for ids, verdict in zip(filt.last_stats.gate_ids, filt.last_stats.gate_verdict):
+                power.add_verdicts(window_start, fr.stamp_s, ids, verdict)
+            if i % 200 == 199:
+                power.forget_before(window_start)
             n_depth += int(has.sum())
             n_feat += len(has)
             n_gated += filt.last_stats.n_gated_out
@@ -597,7 +614,15 @@ def run_backend(log: TrackLog, rung: Rung, config: MsckfConfig, rig: Any, use_si
     traj = Trajectory(np.asarray(stamps, dtype=np.float64), np.asarray(ps, dtype=np.float64).reshape(-1, 3),
                       np.asarray(qs, dtype=np.float64).reshape(-1, 4), has_orientation=True)
     return traj, failure, {"depth_fraction": n_depth / max(n_feat, 1), "gated_out": n_gated,
-                           "depth_fallback": n_fallback, **frames_gate_statistics(g_pairs), **nees.stats()}
+                           "depth_fallback": n_fallback, **frames_gate_statistics(g_pairs), **nees.stats(),
+                           **power.stats()}
+
+
+def _oldest_clone_time(filt: MsckfFilter, now_s: float) -> float:
+    """Stamp (s) of the oldest clone in the filter's window before it takes the image at ``now_s`` (``now_s``
+    when it has none yet): the first time an observation used by this image's updates can have."""
+    order = filt.clones.order
+    return float(np.min(filt.clones.times[np.asarray(order)])) if order else now_s
 
 
 def frames_gate_statistics(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:

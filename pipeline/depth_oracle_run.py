@@ -175,7 +175,21 @@ def run_ladder(prepared: dict[str, Any], config: MsckfConfig, rungs: list[Rung] 
                           "gamma_per_dof_median": float(np.nanmedian([s["gamma_per_dof_median"]
                                                                       for s in stats.values()])),
                           "chi2_noise_scale": float(np.nanmedian([s["chi2_noise_scale"] for s in stats.values()])),
-                          **_mean_nees([stats[s] for s in ate])}
+                          **_mean_nees([stats[s] for s in ate]), **_pooled_gate_power(stats.values())}
+    return out
+
+
+def _pooled_gate_power(stats: Iterable[dict[str, Any]]) -> dict[str, float]:
+    """The gate's verdicts on known-bad and known-good depths (:mod:`pipeline.gate_power`) pooled over seeds: counts
+    summed, fractions of the sums (NaN where there were none)."""
+    out: dict[str, float] = {}
+    stats = list(stats)
+    for kind, frac in (("bad_depth", "passed"), ("flagged_depth", "passed"), ("good_depth", "rejected")):
+        n = np.array([s.get(f"gate_{kind}_features", 0.0) for s in stats], dtype=np.float64)
+        f = np.array([s.get(f"gate_{kind}_{frac}", np.nan) for s in stats], dtype=np.float64)
+        hits = float(np.sum(np.where(n > 0, f * n, 0.0)))
+        out[f"gate_{kind}_features"] = float(n.sum())
+        out[f"gate_{kind}_{frac}"] = hits / n.sum() if n.sum() > 0 else float("nan")
     return out
 
 

@@ -43,10 +43,14 @@ def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> li
     """The per-sequence ladder table (Markdown lines): ATE RMSE mean and per seed (m), the share of features that
     carry a depth, the χ² gate's median γ/dof and χ² noise scale c (1 = calibrated, ``eval.gate_calibration``),
     the NEES of position / orientation where measured (3 = consistent;
-    the orientation's tilt / yaw split in brackets: 2 / 1), features gated out, depth fall-backs, failed runs."""
+    the orientation's tilt / yaw split in brackets: 2 / 1), features gated out, depth fall-backs, the gate's power
+    (``pipeline.gate_power``: of the features offered with a depth off by ≥ 5 px of disparity, the share whose bad
+    depth entered the update; of those with every depth within 2.5 px, the share rejected; counts in brackets),
+    failed runs."""
     lines = ["| rung | ATE RMSE mean (m) | per seed | depth on features | γ/dof median | χ² scale c "
-             "| NEES p / θ (tilt / yaw) | gated out | depth fallback | failed |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| NEES p / θ (tilt / yaw) | gated out | depth fallback | bad depth passed (n) | good depth rejected (n) "
+             "| failed |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         a = [r["ate"].get(s, float("nan")) for s in seeds]
         lines.append(f"| {name} | {np.nanmean(a) if np.isfinite(a).any() else float('nan'):.4f} | "
@@ -56,8 +60,18 @@ def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> li
                      f"{r.get('chi2_noise_scale', float('nan')):.2f} | {_nees_cell(r)} | "
                      f"{r.get('gated_out', '')} | "
                      f"{r.get('depth_fallback', '')} | "
+                     f"{_share_cell(r, 'gate_bad_depth_passed', 'gate_bad_depth_features')} | "
+                     f"{_share_cell(r, 'gate_good_depth_rejected', 'gate_good_depth_features')} | "
                      f"{len(r['failed'])} |")
     return lines
+
+
+def _share_cell(r: Mapping[str, Any], frac: str, count: str) -> str:
+    """``NN % (n)`` for a share of a count, empty where the count is missing or zero."""
+    n = r.get(count, 0.0)
+    if not n or not np.isfinite(r.get(frac, float("nan"))):
+        return ""
+    return f"{100.0 * r[frac]:.0f} % ({int(n)})"
 
 
 def _nees_cell(r: Mapping[str, Any]) -> str:

@@ -610,3 +610,34 @@ def test_extrinsics_after_motion_holds_the_extrinsics_while_the_robot_stands():
             assert np.abs(flt.P[15:18, :15]).max() > 0.0            # and correlated again by the later updates
         else:
             assert min(var_stand) > 0.1 * prior
+
+
+def test_gate_verdicts_name_each_gated_feature_and_what_the_gate_did_with_it():
+    """``FrameStats.gate_ids`` / ``gate_verdict`` line up with ``gate_gamma``; their counts are the frame's
+    ``n_gated_out`` (verdict 0) and ``n_depth_fallback`` (verdict 2); the tracks given a 60 % wrong depth are turned
+    away or taken back without their depth far more often than the others."""
+    w = _with_biased_depth(make_world(seed=5, duration=5.0, max_features=150, depth_mode=True,
+                                      depth_rel_sigma=0.01), every=4, factor=1.6)
+    cfg = matched_config(depth_rel_sigma=0.01, depth_inv_sigma=1e-3, depth_fallback=True)
+    flt = MsckfFilter(cfg, w.T_cam0_imu, w.T_cam1_cam0)
+    flt.initialize(w.t0, w.R0, w.p0, w.v0, w.b_g0, w.b_a0, 9.81)
+    ids_all, verdict_all = [], []
+    for _ in iterate(w, flt):
+        st = flt.last_stats
+        assert len(st.gate_ids) == len(st.gate_verdict) == len(st.gate_gamma)
+        for ids, v, g in zip(st.gate_ids, st.gate_verdict, st.gate_gamma):
+            assert ids.shape == v.shape == np.shape(g)
+        v = np.concatenate(st.gate_verdict) if st.gate_verdict else np.zeros(0, np.int8)
+        assert np.count_nonzero(v == 0) == st.n_gated_out
+        assert np.count_nonzero(v == 2) == st.n_depth_fallback
+        ids_all += list(st.gate_ids)
+        verdict_all += list(st.gate_verdict)
+    ids, verdict = np.concatenate(ids_all), np.concatenate(verdict_all)
+    assert set(np.unique(verdict)) <= {0, 1, 2}
+    biased = ids % 4 == 0
+    turned_away = verdict != 1
+    # measured: 79 of 721 gated biased features turned away (11 %), 54 of 2316 others (2.3 %): a depth error shared
+    # along a track moves the feature's position and shows only through parallax, so the gate catches few of them
+    assert turned_away[biased].mean() > 2.5 * turned_away[~biased].mean(), (turned_away[biased].mean(),
+                                                                           turned_away[~biased].mean())
+    assert np.count_nonzero(verdict[biased] == 2) > 0
