@@ -192,25 +192,30 @@ class DepthSigmaModel:
             return np.zeros(raw_valid.shape, dtype=bool)
         return geodesic_reach(far, ~raw_valid | far, int(self.far_open_radius_px)) & ~raw_valid
 
+    def disparity_span(self, depth_m: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(H, W) float32 max − min (px) of the measured disparities ``f·B / Z`` (``valid`` and Z > 0) within the
+        (2r+1)² neighbourhood (r = ``edge_radius_px``) of every pixel; 0 where it holds no measured pixel."""
+        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * self.edge_radius_px + 1,) * 2)
+        ok = _bool(valid) & (np.asarray(depth_m) > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.float32(self.fx_baseline) / _f32(depth_m)
+        # no measured pixel in the window: max −inf (OpenCV's border value −FLT_MAX where the window leaves the
+        # image), min +inf: their difference is not finite, and the span is 0 there
+        d_max = cv2.dilate(np.where(ok, d, np.float32(-np.inf)), kernel)
+        d_min = cv2.erode(np.where(ok, d, np.float32(np.inf)), kernel)
+        with np.errstate(invalid="ignore", over="ignore"):
+            span = d_max - d_min
+        return np.where(np.isfinite(span) & (span > 0), span, np.float32(0.0)).astype(np.float32)
+
     def occlusion_edge(self, raw_depth_m: np.ndarray, raw_valid: np.ndarray) -> np.ndarray:
         """(H, W) bool: the holes of a raw map whose (2r+1)² neighbourhood (r = ``edge_radius_px``) holds measured
         disparities ``f·B / Z`` spanning more than ``edge_disparity_sigmas · √2 · disparity_sigma_px`` px: holes at
-        a depth discontinuity. All False when disabled (``edge_disparity_sigmas`` ≤ 0) or where no measured pixel
-        is that near."""
+        a depth discontinuity (:meth:`disparity_span`). All False when disabled (``edge_disparity_sigmas`` ≤ 0) or
+        where no measured pixel is that near."""
         if self.edge_disparity_sigmas <= 0 or raw_valid.all() or not raw_valid.any():
             return np.zeros(raw_valid.shape, dtype=bool)
-        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * self.edge_radius_px + 1,) * 2)
-        measured = _bool(raw_valid)
-        valid = measured & (np.asarray(raw_depth_m) > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d = np.float32(self.fx_baseline) / _f32(raw_depth_m)
-        # no measured pixel in the window: max −inf (OpenCV's border value −FLT_MAX where the window leaves the
-        # image), min +inf: their difference is −inf, so the test is False there
-        d_max = cv2.dilate(np.where(valid, d, np.float32(-np.inf)), kernel)
-        d_min = cv2.erode(np.where(valid, d, np.float32(np.inf)), kernel)
         limit = np.float32(self.edge_disparity_sigmas * np.sqrt(2.0) * self.disparity_sigma_px)
-        with np.errstate(invalid="ignore", over="ignore"):
-            return ~measured & (d_max - d_min > limit)
+        return ~_bool(raw_valid) & (self.disparity_span(raw_depth_m, raw_valid) > limit)
 
     def filled(self, depth_m: np.ndarray, valid: np.ndarray, raw_depth_m: np.ndarray, raw_valid: np.ndarray,
                method: str) -> tuple[np.ndarray, np.ndarray]:

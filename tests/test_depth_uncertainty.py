@@ -47,6 +47,18 @@ def test_raw_sigma_follows_the_disparity_model_and_fills_are_less_certain():
     assert filled[10, 14] > filled[10, 10] > raw[0, 0]                 # farther into the hole: less certain
 
 
+def test_disparity_span_is_the_measured_disparity_range_around_a_pixel():
+    """A step from 2 m to 4 m (disparity 20 → 10 px at f·B = 40): the span is 10 px within r = 3 of the step, 0 on
+    either plane away from it and where no measured pixel is near (an unmeasured block)."""
+    depth = np.full((20, 40), 2.0, np.float32)
+    depth[:, 20:] = 4.0
+    valid = np.ones(depth.shape, bool)
+    valid[5:15, 28:38] = False
+    span = DepthSigmaModel(fx_baseline=40.0, edge_radius_px=3).disparity_span(depth, valid)
+    assert span[5, 17] == pytest.approx(10.0) and span[5, 22] == pytest.approx(10.0)
+    assert span[5, 16] == 0.0 and span[5, 23] == 0.0 and span[10, 33] == 0.0
+
+
 def _numpy_sigma_maps(model: DepthSigmaModel, depth: np.ndarray, raw_valid: np.ndarray, method: str):
     """The σ maps as numpy expressions (what the compiled kernels replace): raw σ, filled σ."""
     rel0, per_px, rel_max = model.fill[method]
