@@ -189,6 +189,16 @@ class LadderResult:
                           "and yaw (χ²(1): 1); truth anchored at each run's first pose in yaw and position only):",
                           "", head, "|---|" + "---|" * len(seqs),
                           *(f"| {n} | " + " | ".join(c) + " |" for n, c in nees_cells.items())]
+        gate_cells = {n: [_share_cell(self.results[s].get(n, {}), "gate_bad_depth_passed", "gate_bad_depth_features")
+                          for s in seqs] for n in names}
+        gate_lines: list[str] = []
+        if any(c for cells in gate_cells.values() for c in cells):
+            gate_lines = ["", "Does the χ² gate keep bad depths out? Of the features offered to it with a depth "
+                          "reading off by ≥ 5 px of disparity and by more than 3 of the σ it was stated with, the "
+                          "share whose bad reading entered the update (features, pooled over seeds; "
+                          "`pipeline/gate_power.py`):",
+                          "", head, "|---|" + "---|" * len(seqs),
+                          *(f"| {n} | " + " | ".join(c) + " |" for n, c in gate_cells.items() if any(c))]
         ok, bad = self.verdict
         dur = f"{self.duration_s:g} s sequences, " if self.duration_s else ""
         seeds = ", ".join(map(str, self.seeds))
@@ -196,7 +206,7 @@ class LadderResult:
                "replaces only the depth values attached to the same recorded tracks; *exact* is the tracked 3-D "
                "point's true depth, not the depth map's value at the pixel (a corner on a depth edge reads the "
                "background). `inpainted[M]` is what a depth-inpainted run gets; `mono` carries no depth at all.",
-               "", *lines, *nees_lines, "",
+               "", *lines, *nees_lines, *gate_lines, "",
                f"**ladder monotone: {'yes' if ok else 'no'}** (ATE must not grow as the depth error falls, within "
                "2 standard errors of the paired per-seed differences + 3 %).", ""]
         for seq, c in ladder_checks(self.results).items():

@@ -92,6 +92,17 @@ def test_ladder_section_has_a_nees_table_only_where_the_nees_was_measured():
     assert "| stereo |  |" in nees                                    # not measured: an empty cell, not "nan"
 
 
+def test_ladder_section_has_a_gate_power_table_only_where_bad_depths_were_counted():
+    assert "keep bad depths out" not in LadderResult({"seq-a": GOOD}, (0, 1, 2), ("paper",), 10.0).markdown()
+    counted = {n: dict(r) for n, r in GOOD.items()}
+    counted["depth-raw"].update(gate_bad_depth_features=40.0, gate_bad_depth_passed=0.9)
+    counted["exact-everywhere"].update(gate_bad_depth_features=0.0, gate_bad_depth_passed=float("nan"))
+    md = LadderResult({"seq-a": counted}, (0, 1, 2), ("paper",), 10.0).markdown()
+    gate = md[md.index("keep bad depths out"):]
+    assert "| depth-raw | 90 % (40) |" in gate
+    assert "| exact-everywhere |" not in gate                          # nothing counted: no row
+
+
 def test_ladder_names_the_reference_its_ate_was_measured_against():
     """The demo's ladder is measured against the simulator's true IMU trajectory (the 5 Hz GT file's nearest-stamp
     pairing alone costs the true trajectory 7.5 mm, the size of the differences the ladder judges); the report must
