@@ -33,6 +33,7 @@ from pipeline.depth_cache import DepthCache  # noqa: E402
 from pipeline.depth_oracle_run import default_config, prepare_oracle  # noqa: E402
 from pipeline.depth_sigma import RAW_DISPARITY_SIGMA_PX, DepthSigmaModel  # noqa: E402
 from pipeline.paths import cache_dir  # noqa: E402
+from pipeline.sim.presets import PRESETS  # noqa: E402
 from pipeline.sim.sequence import SimulatedSequence  # noqa: E402
 from pipeline.sim_source import simulate_cached  # noqa: E402
 
@@ -93,9 +94,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=1, help="use every N-th frame")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    presets = [p if p.startswith("rosario") else f"rosario-like-{p}" for p in args.presets]
+    unknown = [p for p in presets if p not in PRESETS]
+    if unknown:
+        ap.error(f"--presets: unknown {', '.join(unknown)} (known: {', '.join(p for p in PRESETS if p != 'tiny')})")
+    if args.every < 1:
+        ap.error("--every must be >= 1")
     result = {}
-    for p in args.presets:
-        preset = p if p.startswith("rosario") else f"rosario-like-{p}"
+    for preset in presets:
         r = readings(preset, args.duration, args.seed, args.every)
         rows = span_table(r)
         result[preset] = rows
