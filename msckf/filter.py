@@ -597,7 +597,7 @@ class MsckfFilter:
                                               acc_rows_count, st) if c.depth_fallback else np.zeros(0, np.int64)
             verdict = ok.astype(np.int8)
             verdict[back] = 2
-            st.gate_ids.append(self.features.ids[rows[grp]].copy())
+            st.gate_ids.append(self.features.ids[rows[grp]])   # fancy indexing: a copy
             st.gate_verdict.append(verdict)
             st.n_gated_out += int(np.count_nonzero(~ok)) - len(back)
             if np.any(ok):

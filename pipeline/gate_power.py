@@ -61,21 +61,21 @@ class GatePower:
     # track id → [(stamp s, |Δd| px, stated σ_d px, filled)]
     _readings: dict[int, list[tuple[float, float, float, bool]]] = field(default_factory=lambda: defaultdict(list))
 
-    def add_readings(self, stamp_s: float, ids: np.ndarray, disparity_error_px: np.ndarray,
-                     sigma_px: np.ndarray | None, filled: np.ndarray) -> None:
+    def add_readings(self, stamp_s: float, ids: np.ndarray, disparity_error_px: np.ndarray, sigma_px: np.ndarray,
+                     filled: np.ndarray) -> None:
         """One frame's depth readings: ids (N,) of the features given a depth, their |Δd| (N,) px (NaN: no
-        truth), their stated σ in disparity px (N,) (NaN or None: none stated) and whether each is a fill (N,)."""
-        n = len(np.asarray(ids))
-        sd = np.full(n, np.nan) if sigma_px is None else np.asarray(sigma_px, dtype=np.float64)
-        for i, dd, s, f in zip(np.asarray(ids).tolist(), np.asarray(disparity_error_px, dtype=np.float64).tolist(),
-                               sd.tolist(), np.asarray(filled, dtype=bool).tolist()):
-            self._readings[int(i)].append((float(stamp_s), dd, s, f))
+        truth), their stated σ in disparity px (N,) (NaN: none stated) and whether each is a fill (N,)."""
+        columns = (np.asarray(ids).tolist(), np.asarray(disparity_error_px, dtype=np.float64).tolist(),
+                   np.asarray(sigma_px, dtype=np.float64).tolist(), np.asarray(filled, dtype=bool).tolist())
+        for i, dd, sd, f in zip(*columns):
+            self._readings[int(i)].append((float(stamp_s), dd, sd, f))
 
-    def _is_bad(self, dd: float, sd: float) -> bool:
-        return bool(np.isfinite(dd) and dd >= self.bad_px and not (np.isfinite(sd) and dd <= self.cover_sigmas * sd))
-
-    def _is_flagged(self, dd: float, sd: float) -> bool:
-        return bool(np.isfinite(dd) and dd >= self.bad_px and np.isfinite(sd) and dd <= self.cover_sigmas * sd)
+    def _kind(self, dd: float, sd: float) -> str | None:
+        """``"bad"`` (≥ ``bad_px`` and not covered by ``cover_sigmas`` of its σ), ``"flagged"`` (≥ ``bad_px``,
+        covered) or None."""
+        if not (np.isfinite(dd) and dd >= self.bad_px):
+            return None
+        return "flagged" if np.isfinite(sd) and dd <= self.cover_sigmas * sd else "bad"
 
     def add_verdicts(self, window_start_s: float, now_s: float, ids: np.ndarray, verdicts: np.ndarray) -> None:
         """The gate's verdicts (0 rejected, 1 accepted, 2 accepted without fills) on features ``ids``, whose
@@ -84,21 +84,21 @@ class GatePower:
             rs = [r for r in self._readings.get(int(i), ()) if window_start_s <= r[0] <= now_s]
             if self.fills_only_unmeasured and any(not r[3] for r in rs):
                 rs = [r for r in rs if not r[3]]
-            errs = np.array([r[1] for r in rs], dtype=np.float64)
-            known = errs[np.isfinite(errs)]
-            if known.size == 0:
+            known = [r[1] for r in rs if np.isfinite(r[1])]
+            if not known:
                 continue
-            entered = [] if v == 0 else [r for r in rs if v == 1 or (not r[3] and not self.fallback_measured)]
-            if any(self._is_bad(r[1], r[2]) for r in rs):
+            offered = {self._kind(r[1], r[2]) for r in rs}
+            entered = {self._kind(r[1], r[2]) for r in rs
+                       if v == 1 or (v == 2 and not r[3] and not self.fallback_measured)}
+            if "bad" in offered:
                 self.n_bad += 1
-                self.n_bad_passed += any(self._is_bad(r[1], r[2]) for r in entered)
-            elif any(self._is_flagged(r[1], r[2]) for r in rs):
+                self.n_bad_passed += "bad" in entered
+            elif "flagged" in offered:
                 self.n_flagged += 1
-                self.n_flagged_passed += any(self._is_flagged(r[1], r[2]) for r in entered)
-            elif known.max() < self.good_px:
+                self.n_flagged_passed += "flagged" in entered
+            elif max(known) < self.good_px:
                 self.n_good += 1
-                if v == 0:
-                    self.n_good_rejected += 1
+                self.n_good_rejected += v == 0
 
     def forget_before(self, t_s: float) -> None:
         """Drop readings older than ``t_s`` (they can no longer be in a window); keeps memory bounded."""

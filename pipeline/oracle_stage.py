@@ -66,6 +66,15 @@ def rung_table(res: Mapping[str, Mapping[str, Any]], seeds: Sequence[int]) -> li
     return lines
 
 
+def _captioned_table(caption: str, head: str, n_cols: int, rows: Mapping[str, list[str]]) -> list[str]:
+    """A blank line, ``caption``, and a Markdown table (``head`` and one row per entry of ``rows``: name → cells),
+    or nothing when every cell is empty."""
+    if not any(c for cells in rows.values() for c in cells):
+        return []
+    return ["", caption, "", head, "|---|" + "---|" * n_cols,
+            *(f"| {n} | " + " | ".join(cells) + " |" for n, cells in rows.items())]
+
+
 def _share_cell(r: Mapping[str, Any], frac: str, count: str) -> str:
     """``NN % (n)`` for a share of a count, empty where the count is missing or zero."""
     n = r.get(count, 0.0)
@@ -181,24 +190,18 @@ class LadderResult:
                 cells.append(cell)
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
         nees_cells = {n: [_nees_cell(self.results[s].get(n, {})) for s in seqs] for n in names}
-        nees_lines: list[str] = []
-        if any(c for cells in nees_cells.values() for c in cells):
-            nees_lines = ["", "NEES of the IMU position / orientation against the truth (time average over each run, "
-                          "mean over seeds; χ²(3): **3 when the filter's covariance matches its error**, above it "
-                          "the filter is overconfident; in brackets the orientation's tilt (roll / pitch, χ²(2): 2) "
-                          "and yaw (χ²(1): 1); truth anchored at each run's first pose in yaw and position only):",
-                          "", head, "|---|" + "---|" * len(seqs),
-                          *(f"| {n} | " + " | ".join(c) + " |" for n, c in nees_cells.items())]
+        nees_lines = _captioned_table(
+            "NEES of the IMU position / orientation against the truth (time average over each run, mean over seeds; "
+            "χ²(3): **3 when the filter's covariance matches its error**, above it the filter is overconfident; in "
+            "brackets the orientation's tilt (roll / pitch, χ²(2): 2) and yaw (χ²(1): 1); truth anchored at each "
+            "run's first pose in yaw and position only):", head, len(seqs), nees_cells)
         gate_cells = {n: [_share_cell(self.results[s].get(n, {}), "gate_bad_depth_passed", "gate_bad_depth_features")
                           for s in seqs] for n in names}
-        gate_lines: list[str] = []
-        if any(c for cells in gate_cells.values() for c in cells):
-            gate_lines = ["", "Does the χ² gate keep bad depths out? Of the features offered to it with a depth "
-                          "reading off by ≥ 5 px of disparity and by more than 3 of the σ it was stated with, the "
-                          "share whose bad reading entered the update (features, pooled over seeds; "
-                          "`pipeline/gate_power.py`):",
-                          "", head, "|---|" + "---|" * len(seqs),
-                          *(f"| {n} | " + " | ".join(c) + " |" for n, c in gate_cells.items() if any(c))]
+        gate_lines = _captioned_table(
+            "Does the χ² gate keep bad depths out? Of the features offered to it with a depth reading off by ≥ 5 px "
+            "of disparity and by more than 3 of the σ it was stated with, the share whose bad reading entered the "
+            "update (features, pooled over seeds; `pipeline/gate_power.py`):", head, len(seqs),
+            {n: c for n, c in gate_cells.items() if any(c)})
         ok, bad = self.verdict
         dur = f"{self.duration_s:g} s sequences, " if self.duration_s else ""
         seeds = ", ".join(map(str, self.seeds))
